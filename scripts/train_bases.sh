@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Trains the two shipped PushT base policies with the stock lerobot-train on CPU (seed 1000).
+# Usage: scripts/train_bases.sh {diffusion|act} [extra lerobot-train flags, e.g. --resume=true ...]
+# Data: .venv/bin/dcdp-pusht-demos --root data/pusht_expert --episodes 500 --seed 0 --workers 2
+set -euo pipefail
+kind=$1; shift
+DATA=${DATA:-data/pusht_expert}
+common=(--dataset.repo_id=local/pusht_expert --dataset.root="$DATA" --policy.device=cpu --policy.push_to_hub=false
+        --wandb.enable=false --num_workers=1 --seed=1000 --log_freq=200)
+case $kind in
+  diffusion)
+    exec .venv/bin/lerobot-train --policy.type=diffusion "${common[@]}" \
+      --policy.horizon=16 --policy.n_obs_steps=2 --policy.n_action_steps=8 --policy.drop_n_last_frames=7 \
+      --policy.down_dims='[64,128,256]' --policy.diffusion_step_embed_dim=64 \
+      --policy.noise_scheduler_type=DDIM --policy.num_train_timesteps=100 --policy.num_inference_steps=10 \
+      --policy.normalization_mapping='{"VISUAL": "MEAN_STD", "STATE": "MIN_MAX", "ENV": "MIN_MAX", "ACTION": "MIN_MAX"}' \
+      --policy.optimizer_lr=3e-4 --batch_size=64 --steps=10000 --save_freq=2000 \
+      --output_dir=${OUT:-runs/diffusion_base} "$@" ;;
+  act)
+    exec .venv/bin/lerobot-train --policy.type=act "${common[@]}" \
+      --policy.chunk_size=16 --policy.n_action_steps=8 --policy.dim_model=128 --policy.n_heads=4 \
+      --policy.dim_feedforward=512 --policy.n_encoder_layers=2 --policy.n_decoder_layers=1 \
+      --policy.n_vae_encoder_layers=2 --policy.latent_dim=16 --policy.optimizer_lr=1e-4 \
+      --policy.pretrained_backbone_weights=null \
+      --batch_size=64 --steps=4000 --save_freq=2000 \
+      --output_dir=${OUT:-runs/act_base} "$@" ;;
+  *) echo "usage: $0 {diffusion|act}" >&2; exit 2 ;;
+esac

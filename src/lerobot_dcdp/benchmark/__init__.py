@@ -1,0 +1,1 @@
+"""The paper's PushT experiment: rollouts of every execution mode, latency, tables, plots, videos."""

@@ -1,0 +1,127 @@
+"""Batched PushT rollouts of one policy (any execution mode) under one perturbation, with per-step timing.
+
+The loop is the one ``lerobot-eval`` runs -- env observation -> ``preprocess_observation`` -> pre-processor ->
+``select_action`` -> post-processor -> ``env.step`` -- over a list of envs stepped in lock-step. An env that
+succeeded (coverage > 0.95) or hit the step limit stops; the policy keeps its batch (the finished env's
+last observation is repeated) so every env of the batch sees the same policy state machine.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+
+@dataclass
+class Condition:
+    """A perturbation setting of the protocol."""
+
+    name: str
+    perturbation: str = "none"
+    magnitude: float = 0.0
+
+    def env_kwargs(self) -> dict:
+        return {"perturbation": self.perturbation, "magnitude": self.magnitude}
+
+
+CONDITIONS = [
+    Condition("static"),
+    Condition("constant_0.5", "constant", 0.5),
+    Condition("random_0.5", "random", 0.5),
+    Condition("constant_1.0", "constant", 1.0),
+    Condition("random_1.0", "random", 1.0),
+]
+
+
+@dataclass
+class RolloutResult:
+    seeds: list[int]
+    successes: list[bool]
+    max_rewards: list[float]
+    steps: list[int]
+    step_times_ms: list[float] = field(default_factory=list)
+    frames: dict[int, list[np.ndarray]] = field(default_factory=dict)
+
+    @property
+    def success_rate(self) -> float:
+        return float(np.mean(self.successes)) if self.successes else float("nan")
+
+    @property
+    def score(self) -> float:
+        """The paper's score: mean over episodes of max_t clip(coverage_t / 0.95, 0, 1)."""
+        return float(np.mean(self.max_rewards)) if self.max_rewards else float("nan")
+
+
+def _stack_obs(obs_list: list[dict]) -> dict[str, np.ndarray]:
+    return {k: np.stack([o[k] for o in obs_list]) for k in obs_list[0]}
+
+
+@torch.no_grad()
+def rollout(
+    policy,
+    preprocessor,
+    postprocessor,
+    condition: Condition,
+    seeds: list[int],
+    max_steps: int = 300,
+    obs_type: str = "environment_state_agent_pos",
+    render_seeds: tuple[int, ...] = (),
+    progress=None,
+) -> RolloutResult:
+    """Run ``len(seeds)`` episodes in one batch; returns per-episode results and per-step policy times."""
+    from lerobot.envs.utils import preprocess_observation
+
+    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
+
+    envs = [
+        make_perturbed_env(
+            obs_type=obs_type, max_episode_steps=max_steps, render_mode="rgb_array", **condition.env_kwargs()
+        )
+        for _ in seeds
+    ]
+    obs = [env.reset(seed=s)[0] for env, s in zip(envs, seeds, strict=True)]
+    n = len(seeds)
+    active = np.ones(n, dtype=bool)
+    success = np.zeros(n, dtype=bool)
+    max_reward = np.zeros(n)
+    steps = np.zeros(n, dtype=int)
+    frames: dict[int, list[np.ndarray]] = {
+        s: [envs[i].render()] for i, s in enumerate(seeds) if s in render_seeds
+    }
+    times: list[float] = []
+    policy.reset()
+    for _ in range(max_steps):
+        batch = preprocess_observation(_stack_obs(obs))
+        t0 = time.perf_counter()
+        batch = preprocessor(batch)
+        action = postprocessor(policy.select_action(batch))
+        times.append((time.perf_counter() - t0) * 1e3)
+        action = action.cpu().numpy()
+        for i in np.flatnonzero(active):
+            o, r, term, trunc, info = envs[i].step(action[i])
+            obs[i] = o
+            steps[i] += 1
+            max_reward[i] = max(max_reward[i], float(r))
+            if seeds[i] in frames:
+                frames[seeds[i]].append(envs[i].render())
+            if info.get("is_success", False):
+                success[i] = True
+            if term or trunc or success[i]:
+                active[i] = False
+        if progress is not None:
+            progress()
+        if not active.any():
+            break
+    for env in envs:
+        env.close()
+    return RolloutResult(
+        seeds=list(seeds),
+        successes=success.tolist(),
+        max_rewards=max_reward.tolist(),
+        steps=steps.tolist(),
+        step_times_ms=times,
+        frames=frames,
+    )

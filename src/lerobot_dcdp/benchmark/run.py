@@ -1,0 +1,259 @@
+"""``dcdp-benchmark``: every execution mode x every perturbation, 50 fixed seeds, one protocol.
+
+For each corrector given with ``--model LABEL=DIR`` (default: the shipped diffusion and ACT correctors) the
+base it records is run as ``open_loop`` (H = 8), ``closed_loop`` (H = 1), ``temporal_ensemble`` (H = 1, 0.5)
+and ``dcdp`` (H = 8) on static PushT and under constant / random block drift of 0.5 and 1.0 px per step.
+Seeds 100000.., 300 steps max, an episode ends on success (coverage > 0.95). Writes ``results/benchmark.json``
+(finished cells are kept and not recomputed), the per-step latency at batch 1, a plot, side-by-side videos
+and ``docs/RESULTS.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+METHODS = ["open_loop", "closed_loop", "temporal_ensemble", "dcdp"]
+DEFAULT_MODELS = {"diffusion": "models/pusht-dcdp-state", "act": "models/pusht-dcdp-act-state"}
+
+
+def machine() -> dict:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import torch
+
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "platform": platform.platform(),
+    }
+
+
+def git_commit() -> str:
+    try:
+        return subprocess.run(
+            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def load_model(corrector_dir: str):
+    """The corrector (with its base) and the processors saved beside it."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    import lerobot_policy_dcdp  # noqa: F401
+    from lerobot_dcdp.correction import state_dict_sha256
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+
+    policy = DCDPPolicy.from_pretrained(corrector_dir)
+    policy.eval()
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=corrector_dir)
+    identity = {
+        "corrector": corrector_dir,
+        "corrector_sha256": state_dict_sha256(policy.state_dict()),
+        "base": policy.config.base_policy_path,
+        "base_type": policy.config.base_policy_type,
+        "base_weights_sha256": policy.config.base_weights_sha256,
+        "corrector_params": sum(p.numel() for p in policy.parameters()),
+    }
+    return policy, pre, post, identity
+
+
+def set_mode(policy, method: str) -> None:
+    policy.config.execution = method
+    policy.reset()
+
+
+def main(argv: list[str] | None = None) -> None:
+    from tqdm import tqdm
+
+    from lerobot_dcdp.benchmark.report import write_report
+    from lerobot_dcdp.benchmark.rollout import CONDITIONS, rollout
+
+    p = argparse.ArgumentParser(prog="dcdp-benchmark", description=__doc__.splitlines()[0])
+    p.add_argument(
+        "--model",
+        action="append",
+        default=None,
+        metavar="LABEL=DIR",
+        help="a corrector checkpoint to benchmark (repeatable); default: the shipped ones",
+    )
+    p.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
+    p.add_argument(
+        "--conditions", nargs="+", default=[c.name for c in CONDITIONS], choices=[c.name for c in CONDITIONS]
+    )
+    p.add_argument("--episodes", type=int, default=50)
+    p.add_argument("--seed-start", type=int, default=100_000)
+    p.add_argument("--max-steps", type=int, default=300)
+    p.add_argument("--batch-size", type=int, default=50, help="envs rolled out together")
+    p.add_argument("--latency-steps", type=int, default=300, help="batch-1 steps timed per method (0: skip)")
+    p.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    p.add_argument("--videos", type=int, default=2, help="side-by-side open_loop|dcdp videos to render")
+    p.add_argument("--out", default="results/benchmark.json")
+    p.add_argument("--report", default="docs/RESULTS.md")
+    p.add_argument("--force", action="store_true", help="recompute finished cells")
+    a = p.parse_args(argv)
+
+    import torch
+
+    torch.set_num_threads(a.threads)
+    models = (
+        dict(m.split("=", 1) for m in a.model)
+        if a.model
+        else {k: v for k, v in DEFAULT_MODELS.items() if Path(v).is_dir()}
+    )
+    if not models:
+        sys.exit("dcdp-benchmark: error: no corrector found; pass --model LABEL=DIR")
+    out = Path(a.out)
+    results = json.loads(out.read_text()) if out.exists() else {"cells": {}, "latency": {}}
+    results["command"] = "dcdp-benchmark " + " ".join(argv if argv is not None else sys.argv[1:])
+    results["machine"] = machine()
+    results["git_commit"] = git_commit()
+    seeds = list(range(a.seed_start, a.seed_start + a.episodes))
+    conds = {c.name: c for c in CONDITIONS}
+    video_dir = out.parent / "videos"
+
+    def save() -> None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(results, indent=1))
+        tmp.replace(out)
+
+    for label, path in models.items():
+        policy, pre, post, ident = load_model(path)
+        results.setdefault("models", {})[label] = ident
+        todo = [
+            (m, c)
+            for c in a.conditions
+            for m in a.methods
+            if a.force or not _fresh(results["cells"].get(f"{label}|{m}|{c}"), ident, seeds, a.max_steps)
+        ]
+        bar = tqdm(total=len(todo) * a.max_steps, desc=f"{label}: rollouts", unit="step")
+        for method, cname in todo:
+            render = tuple(seeds[: a.videos]) if method in ("open_loop", "dcdp") and cname != "static" else ()
+            set_mode(policy, method)
+            t0 = time.perf_counter()
+            res = []
+            for i in range(0, len(seeds), a.batch_size):
+                res.append(
+                    rollout(
+                        policy,
+                        pre,
+                        post,
+                        conds[cname],
+                        seeds[i : i + a.batch_size],
+                        a.max_steps,
+                        render_seeds=render,
+                        progress=lambda: None,
+                    )
+                )
+            bar.update(a.max_steps)
+            cell = {
+                "model": label,
+                "method": method,
+                "condition": cname,
+                **conds[cname].env_kwargs(),
+                "episodes": len(seeds),
+                "seeds": [seeds[0], seeds[-1]],
+                "max_steps": a.max_steps,
+                "success_rate": float(np.mean([s for r in res for s in r.successes])),
+                "score": float(np.mean([m for r in res for m in r.max_rewards])),
+                "mean_steps": float(np.mean([s for r in res for s in r.steps])),
+                "successes": [bool(s) for r in res for s in r.successes],
+                "max_rewards": [round(m, 5) for r in res for m in r.max_rewards],
+                "batched_step_ms_mean": float(np.mean([t for r in res for t in r.step_times_ms])),
+                "wall_s": round(time.perf_counter() - t0, 1),
+                "identity": ident,
+            }
+            results["cells"][f"{label}|{method}|{cname}"] = cell
+            frames = {s: f for r in res for s, f in r.frames.items()}
+            if frames:
+                _stash_frames(video_dir, label, method, cname, frames)
+            save()
+        bar.close()
+        if a.latency_steps > 0:
+            for method in a.methods:
+                key = f"{label}|{method}"
+                if not a.force and _fresh(results["latency"].get(key), ident, seeds[:1], a.latency_steps):
+                    continue
+                set_mode(policy, method)
+                r = rollout(policy, pre, post, conds["static"], seeds[:1], a.latency_steps)
+                t = np.array(r.step_times_ms[1:] if len(r.step_times_ms) > 1 else r.step_times_ms)
+                results["latency"][key] = {
+                    "model": label,
+                    "method": method,
+                    "batch": 1,
+                    "steps": int(len(t)),
+                    "mean_ms": float(t.mean()),
+                    "p95_ms": float(np.percentile(t, 95)),
+                    "seeds": seeds[:1],
+                    "max_steps": a.latency_steps,
+                    "identity": ident,
+                }
+                save()
+        _write_videos(video_dir, label)
+    write_report(results, Path(a.report), out)
+    print(f"wrote {out} and {a.report}")
+
+
+def _fresh(cell: dict | None, ident: dict, seeds: list[int], max_steps: int) -> bool:
+    """A stored cell is reused only for the same corrector, base, seeds and step limit."""
+    if not cell:
+        return False
+    i = cell.get("identity", {})
+    return (
+        i.get("corrector_sha256") == ident["corrector_sha256"]
+        and i.get("base_weights_sha256") == ident["base_weights_sha256"]
+        and cell.get("seeds", [None])[0] == seeds[0]
+        and cell.get("max_steps") == max_steps
+        and cell.get("episodes", len(seeds)) == len(seeds)
+    )
+
+
+def _stash_frames(video_dir: Path, label: str, method: str, cname: str, frames: dict) -> None:
+    import cv2
+
+    video_dir.mkdir(parents=True, exist_ok=True)
+    for seed, fr in frames.items():
+        small = np.stack([cv2.resize(f, (256, 256), interpolation=cv2.INTER_AREA) for f in fr])
+        np.save(video_dir / f".{label}_{method}_{cname}_{seed}.npy", small)
+
+
+def _write_videos(video_dir: Path, label: str) -> None:
+    """Side by side: open loop (left) | DCDP (right), same seed and perturbation."""
+    from lerobot.utils.io_utils import write_video
+
+    for left in sorted(video_dir.glob(f".{label}_open_loop_*.npy")):
+        right = left.with_name(left.name.replace("_open_loop_", "_dcdp_"))
+        if not right.exists():
+            continue
+        a, b = np.load(left), np.load(right)
+        n = max(len(a), len(b))
+        a = np.concatenate([a, np.repeat(a[-1:], n - len(a), 0)])
+        b = np.concatenate([b, np.repeat(b[-1:], n - len(b), 0)])
+        name = left.name[1:].replace("_open_loop_", "_openloop_vs_dcdp_").replace(".npy", ".mp4")
+        write_video(str(video_dir / name), list(np.concatenate([a, b], axis=2)), fps=10)
+        left.unlink()
+        right.unlink()
+
+
+if __name__ == "__main__":
+    main()

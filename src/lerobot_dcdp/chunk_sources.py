@@ -1,0 +1,99 @@
+"""How a chunk is obtained from each kind of base policy, feeding it the observation history it expects.
+
+Every adapter offers ``reset()``, ``observe(batch)`` (called once per control step with the newest
+normalised observation) and ``chunk(batch) -> (B, L, A)`` (normalised actions starting at the current
+step). They call the base's own public methods so the base runs exactly as LeRobot runs it.
+"""
+
+from __future__ import annotations
+
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.policies.utils import populate_queues
+from lerobot.utils.constants import ACTION, OBS_IMAGES
+from torch import Tensor
+
+
+class ChunkSource:
+    """Generic base: ``predict_action_chunk`` on the current observation (n_obs_steps == 1)."""
+
+    def __init__(self, base: PreTrainedPolicy) -> None:
+        self.base = base
+
+    @property
+    def chunk_length(self) -> int:
+        """Actions one chunk call returns (what H may not exceed)."""
+        cfg = self.base.config
+        for name in ("n_action_steps", "chunk_size", "horizon"):
+            if getattr(cfg, name, None):
+                return int(getattr(cfg, name))
+        raise ValueError(f"cannot tell the chunk length of base type {cfg.type!r}")
+
+    def reset(self) -> None:
+        self.base.reset()
+
+    def observe(self, batch: dict[str, Tensor]) -> None:
+        pass
+
+    def chunk(self, batch: dict[str, Tensor]) -> Tensor:
+        return self.base.predict_action_chunk(_without_action(batch))
+
+
+class DiffusionChunkSource(ChunkSource):
+    """Diffusion Policy: keeps the base's ``n_obs_steps`` observation queues filled (as its
+    ``select_action`` does) so ``predict_action_chunk`` reads the same history; returns ``n_action_steps``
+    actions starting at the current step."""
+
+    @property
+    def chunk_length(self) -> int:
+        return int(self.base.config.n_action_steps)
+
+    def _prepare(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        batch = _without_action(batch)
+        if self.base.config.image_features:
+            batch[OBS_IMAGES] = _stack_images(batch, self.base.config.image_features)
+        return batch
+
+    def observe(self, batch: dict[str, Tensor]) -> None:
+        self.base._queues = populate_queues(self.base._queues, self._prepare(batch))
+
+    def chunk(self, batch: dict[str, Tensor]) -> Tensor:
+        return self.base.predict_action_chunk(self._prepare(batch))
+
+
+class ACTChunkSource(ChunkSource):
+    """ACT: the whole ``chunk_size`` prediction; ACT's own temporal ensembler (in its ``select_action``) is
+    bypassed, the wrapper's execution mode decides how the chunk is executed."""
+
+    @property
+    def chunk_length(self) -> int:
+        return int(self.base.config.chunk_size)
+
+
+def _without_action(batch: dict[str, Tensor]) -> dict[str, Tensor]:
+    return {k: v for k, v in batch.items() if k != ACTION and not k.endswith("_is_pad")}
+
+
+def _stack_images(batch: dict[str, Tensor], keys) -> Tensor:
+    import torch
+
+    return torch.stack([batch[k] for k in keys], dim=-4)
+
+
+def make_chunk_source(base: PreTrainedPolicy) -> ChunkSource:
+    """Adapter for a base policy; raises ValueError for a base that cannot produce chunks."""
+    if not callable(getattr(base, "predict_action_chunk", None)):
+        raise ValueError(
+            f"base policy type {base.config.type!r} has no predict_action_chunk: it cannot plan chunks"
+        )
+    kind = base.config.type
+    if kind == "diffusion":
+        return DiffusionChunkSource(base)
+    if kind == "act":
+        return ACTChunkSource(base)
+    if getattr(base.config, "n_obs_steps", 1) != 1:
+        raise ValueError(
+            f"base policy type {kind!r} needs n_obs_steps={base.config.n_obs_steps} frames "
+            "and has no adapter; "
+            "only single-frame bases are supported generically"
+        )
+    return ChunkSource(base)

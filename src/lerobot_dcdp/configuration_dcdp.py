@@ -1,0 +1,204 @@
+"""Configuration of the DCDP corrector ("Closed-Loop Action Chunks with Dynamic Corrections")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs import NormalizationMode, PreTrainedConfig
+from lerobot.configs.types import FeatureType
+from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
+
+EXECUTION_MODES = ("dcdp", "open_loop", "closed_loop", "temporal_ensemble")
+BACKBONES = ("auto", "mlp", "resnet18")
+
+
+@PreTrainedConfig.register_subclass("dcdp")
+@dataclass
+class DCDPConfig(PreTrainedConfig):
+    """Configuration of a DCDP corrector wrapped around a frozen chunking base policy.
+
+    The base policy (Diffusion Policy, ACT, ...) plans a chunk every ``n_action_steps`` control steps; the
+    corrector (dynamic feature extractor + asymmetric action VAE, paper Sec. 3) re-decodes every action of
+    the chunk at every step from the latest ``n_history`` observations.
+
+    Args:
+        base_policy_path: The frozen base policy: a local ``pretrained_model`` directory or a Hub repo id.
+        base_policy_type: Type of the base (``diffusion``, ``act``, ...); recorded at stage 1.
+        base_weights_sha256: Content hash of the base weights the corrector was trained against; recorded at
+            stage 1 and verified on every load (a different base is refused).
+        n_history: History length M of the observation bank (paper: M = 5). Must be >= 2.
+        n_action_steps: Executed steps H per base chunk (paper: 8). Must not exceed the base's chunk.
+        execution: ``dcdp`` (corrected chunks), ``open_loop`` (the base as LeRobot runs it, replanning every
+            H steps), ``closed_loop`` (replan every step) or ``temporal_ensemble`` (replan every step, blend
+            overlapping predictions).
+        te_weight: Weight of the newest prediction in ``temporal_ensemble`` (authors: 0.5).
+        backbone: Per-frame backbone: ``mlp`` for state/keypoint vectors, ``resnet18`` for images, ``auto``
+            picks ``resnet18`` when the inputs hold images, else ``mlp``.
+        observation_features: Observation keys the corrector reads; empty = every input of the base.
+        feature_dim: Width of the per-frame tokens and of the dynamic feature F.
+        state_hidden_dim: Hidden width of the MLP backbone.
+        n_heads: Attention heads of the temporal self-attention and the diff cross-attention.
+        image_backbone_weights: Optional local file with a torchvision ResNet18 ``state_dict`` (nothing is
+            downloaded; random weights when unset).
+        freeze_image_backbone: Keep the ResNet18 trunk frozen (authors: frozen ImageNet weights).
+        alpha_init: Initial value of the learnable differential scale alpha (D = alpha (X_{k+1} - X_k)).
+        use_temporal_attention: Ablation flag TA (paper Table 3).
+        use_diff_cross_attention: Ablation flag DCA (paper Table 3).
+        use_diff_loss: Ablation flag SSD: the self-supervised loss L_diff (paper Table 3).
+        latent_dim: Size of the chunk latent z (authors' code: 2).
+        encoder_hidden_dim: Hidden width of the chunk encoder E.
+        decoder_hidden_dim: Hidden size of the GRU decoder D (authors' code: 128).
+        step_embed_dim: Size of the step embedding e_s.
+        kl_weight: lambda_KL of the stage-1 loss (authors' code: 1e-3).
+        diff_weight: lambda_diff of the stage-1 loss (authors' code: 1e-3).
+        optimizer_lr: AdamW learning rate (authors: 1e-4).
+        optimizer_weight_decay: AdamW weight decay (authors: 1e-4).
+        optimizer_grad_clip_norm: Gradient clipping (authors: 1.0).
+        scheduler_warmup_steps: Warm-up of the cosine schedule.
+    """
+
+    base_policy_path: str | None = None
+    base_policy_type: str | None = None
+    base_weights_sha256: str | None = None
+
+    n_history: int = 5
+    n_action_steps: int = 8
+    execution: str = "dcdp"
+    te_weight: float = 0.5
+
+    backbone: str = "auto"
+    observation_features: list[str] = field(default_factory=list)
+    feature_dim: int = 128
+    state_hidden_dim: int = 128
+    n_heads: int = 8
+    image_backbone_weights: str | None = None
+    freeze_image_backbone: bool = True
+    alpha_init: float = 1.0
+    use_temporal_attention: bool = True
+    use_diff_cross_attention: bool = True
+    use_diff_loss: bool = True
+
+    latent_dim: int = 2
+    encoder_hidden_dim: int = 128
+    decoder_hidden_dim: int = 128
+    step_embed_dim: int = 16
+    kl_weight: float = 1e-3
+    diff_weight: float = 1e-3
+
+    optimizer_lr: float = 1e-4
+    optimizer_betas: tuple[float, float] = (0.9, 0.999)
+    optimizer_weight_decay: float = 1e-4
+    optimizer_grad_clip_norm: float = 1.0
+    scheduler_name: str = "cosine"
+    scheduler_warmup_steps: int = 0
+
+    # Overwritten with the base's mapping when the policy is built: wrapper and base share one normaliser.
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "VISUAL": NormalizationMode.MEAN_STD,
+            "STATE": NormalizationMode.MIN_MAX,
+            "ENV": NormalizationMode.MIN_MAX,
+            "ACTION": NormalizationMode.MIN_MAX,
+        }
+    )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.base_policy_path:
+            raise ValueError(
+                "base_policy_path is required: the pretrained_model directory or Hub id of the frozen "
+                "chunking policy to correct (--policy.base_policy_path=...)"
+            )
+        if self.n_history < 2:
+            raise ValueError(f"n_history must be >= 2 (differentials need two frames), got {self.n_history}")
+        if self.n_action_steps < 1:
+            raise ValueError(f"n_action_steps must be >= 1, got {self.n_action_steps}")
+        if self.execution not in EXECUTION_MODES:
+            raise ValueError(f"execution must be one of {EXECUTION_MODES}, got {self.execution!r}")
+        if not 0.0 < self.te_weight <= 1.0:
+            raise ValueError(f"te_weight must be in (0, 1], got {self.te_weight}")
+        if self.backbone not in BACKBONES:
+            raise ValueError(f"backbone must be one of {BACKBONES}, got {self.backbone!r}")
+        for name in (
+            "feature_dim",
+            "state_hidden_dim",
+            "latent_dim",
+            "encoder_hidden_dim",
+            "decoder_hidden_dim",
+            "step_embed_dim",
+            "n_heads",
+        ):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.feature_dim % self.n_heads:
+            raise ValueError(
+                f"feature_dim ({self.feature_dim}) must be divisible by n_heads ({self.n_heads})"
+            )
+        for name in ("kl_weight", "diff_weight"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+
+    # ------------------------------------------------------------------ what a training sample holds
+    @property
+    def observation_delta_indices(self) -> list[int]:
+        """Observations t-M+1 .. t+H-1: decoder step s sees the window ending at t+s (train as you infer)."""
+        return list(range(1 - self.n_history, self.n_action_steps))
+
+    @property
+    def action_delta_indices(self) -> list[int]:
+        """Actions t .. t+H-1: the executed part of a chunk."""
+        return list(range(self.n_action_steps))
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None
+
+    def get_optimizer_preset(self) -> AdamWConfig:
+        return AdamWConfig(
+            lr=self.optimizer_lr,
+            betas=self.optimizer_betas,
+            weight_decay=self.optimizer_weight_decay,
+            grad_clip_norm=self.optimizer_grad_clip_norm,
+        )
+
+    def get_scheduler_preset(self) -> DiffuserSchedulerConfig:
+        return DiffuserSchedulerConfig(name=self.scheduler_name, num_warmup_steps=self.scheduler_warmup_steps)
+
+    # ------------------------------------------------------------------ features
+    @property
+    def corrector_features(self) -> list[str]:
+        """Observation keys the corrector reads (``observation_features`` or every observation input)."""
+        if self.observation_features:
+            return list(self.observation_features)
+        return [k for k, ft in (self.input_features or {}).items() if ft.type is not FeatureType.ACTION]
+
+    @property
+    def resolved_backbone(self) -> str:
+        if self.backbone != "auto":
+            return self.backbone
+        feats = self.input_features or {}
+        return (
+            "resnet18"
+            if any(feats[k].type is FeatureType.VISUAL for k in self.corrector_features if k in feats)
+            else "mlp"
+        )
+
+    def validate_features(self) -> None:
+        feats = self.input_features or {}
+        if self.action_feature is None:
+            raise ValueError("output_features must contain 'action' (the base's action)")
+        missing = [k for k in self.corrector_features if k not in feats]
+        if missing:
+            raise ValueError(
+                f"observation_features {missing} are not among the input features {sorted(feats)}"
+            )
+        if not self.corrector_features:
+            raise ValueError("the corrector needs at least one observation feature (input_features is empty)")
+        if self.resolved_backbone == "mlp" and not any(
+            feats[k].type in (FeatureType.STATE, FeatureType.ENV) for k in self.corrector_features
+        ):
+            raise ValueError("backbone='mlp' needs a state or environment_state observation feature")
+        if self.resolved_backbone == "resnet18" and not any(
+            feats[k].type is FeatureType.VISUAL for k in self.corrector_features
+        ):
+            raise ValueError("backbone='resnet18' needs an image observation feature")

@@ -1,0 +1,1 @@
+"""PushT helpers: T-block geometry, a privileged scripted expert and the demonstration recorder."""

@@ -1,0 +1,243 @@
+"""``dcdp-pusht-demos``: record scripted-expert PushT demonstrations as a LeRobotDataset v3.
+
+Every episode seed ``s`` gives one env reset and one expert run (the expert's RNG is seeded with ``s`` too),
+so the dataset is a pure function of ``--seed`` and ``--episodes``. Only successful episodes are kept;
+seeds are tried in order ``seed, seed+1, ...`` until ``--episodes`` successes. Demo seeds must stay below
+the evaluation seeds of the protocol (100000 and up).
+
+The dataset is written into a temporary sibling directory and moved into place only when complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import shutil
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+EVAL_SEED_START = 100_000
+FPS = 10
+TASK = "Push the T-shaped block onto the T-shaped target."
+IMAGE_SIZE = 96
+
+
+@dataclass
+class Episode:
+    seed: int
+    success: bool
+    state: np.ndarray  # (T, 2) agent position
+    env_state: np.ndarray  # (T, 16) keypoints
+    action: np.ndarray  # (T, 2)
+    reward: np.ndarray  # (T,)
+    success_flags: np.ndarray  # (T,)
+    images: np.ndarray | None  # (T, 96, 96, 3) uint8
+
+
+def features(images: bool) -> dict:
+    """LeRobotDataset feature spec of the demonstrations."""
+    feats = {
+        "observation.state": {"dtype": "float32", "shape": (2,), "names": ["x", "y"]},
+        "observation.environment_state": {
+            "dtype": "float32",
+            "shape": (16,),
+            "names": [f"kp{i // 2}_{'xy'[i % 2]}" for i in range(16)],
+        },
+        "action": {"dtype": "float32", "shape": (2,), "names": ["x", "y"]},
+        "next.reward": {"dtype": "float32", "shape": (1,), "names": None},
+        "next.success": {"dtype": "bool", "shape": (1,), "names": None},
+        "next.done": {"dtype": "bool", "shape": (1,), "names": None},
+    }
+    if images:
+        feats["observation.image"] = {
+            "dtype": "video",
+            "shape": (IMAGE_SIZE, IMAGE_SIZE, 3),
+            "names": ["height", "width", "channels"],
+        }
+    return feats
+
+
+def run_episode(seed: int, images: bool = False, hold_steps: int = 3, max_steps: int = 300) -> Episode:
+    """One expert episode from env seed ``seed``; ``hold_steps`` still frames are recorded after success."""
+    import gym_pusht  # noqa: F401
+    import gymnasium as gym
+
+    from lerobot_dcdp.pusht.expert import ScriptedExpert
+
+    env = gym.make(
+        "gym_pusht/PushT-v0",
+        obs_type="environment_state_agent_pos",
+        max_episode_steps=max_steps + hold_steps + 1,
+        disable_env_checker=True,
+    )
+    expert = ScriptedExpert(seed=seed)
+    obs, _ = env.reset(seed=seed)
+    u = env.unwrapped
+    prev = np.array(u.agent.position, dtype=float)
+    cols: dict[str, list] = {k: [] for k in ("state", "env_state", "action", "reward", "success", "image")}
+
+    def step(a) -> bool:
+        cols["state"].append(obs["agent_pos"].astype(np.float32))
+        cols["env_state"].append(obs["environment_state"].astype(np.float32))
+        cols["action"].append(np.asarray(a, dtype=np.float32))
+        if images:
+            cols["image"].append(u._render(visualize=False))
+        new_obs, r, _, _, info = env.step(np.asarray(a, dtype=np.float64))
+        cols["reward"].append(np.float32(r))
+        cols["success"].append(bool(info["is_success"]))
+        obs.update(new_obs)
+        return bool(info["is_success"])
+
+    success = False
+    while len(cols["action"]) < max_steps and not success:
+        for a in expert.next_actions(env, prev):
+            prev = np.asarray(a, dtype=float)
+            if step(a):
+                success = True
+                break
+            if len(cols["action"]) >= max_steps:
+                break
+    if success:
+        hold = np.asarray(u.agent.position, dtype=float)
+        for _ in range(hold_steps):
+            step(hold)
+    env.close()
+    return Episode(
+        seed=seed,
+        success=success,
+        state=np.stack(cols["state"]),
+        env_state=np.stack(cols["env_state"]),
+        action=np.stack(cols["action"]),
+        reward=np.asarray(cols["reward"], dtype=np.float32),
+        success_flags=np.asarray(cols["success"], dtype=bool),
+        images=np.stack(cols["image"]) if images else None,
+    )
+
+
+def _worker(args: tuple[int, bool, int, int]) -> Episode:
+    return run_episode(*args)
+
+
+def record_demonstrations(
+    root: str | Path,
+    repo_id: str = "local/pusht_expert",
+    episodes: int = 200,
+    seed: int = 0,
+    images: bool = False,
+    workers: int = 1,
+    hold_steps: int = 3,
+    max_steps: int = 300,
+    force: bool = False,
+    progress: bool = True,
+) -> dict:
+    """Write ``episodes`` successful expert episodes to a LeRobotDataset v3 at ``root``.
+
+    Returns:
+        Summary dict: kept/tried episodes, frames, seeds used.
+
+    Raises:
+        ValueError: bad arguments, demo seeds reaching the evaluation seeds, or an existing ``root``
+            without ``force``.
+    """
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from tqdm import tqdm
+
+    root = Path(root)
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    if seed < 0:
+        raise ValueError(f"seed must be >= 0, got {seed}")
+    max_tries = 2 * episodes + 10
+    if seed + max_tries > EVAL_SEED_START:
+        raise ValueError(
+            f"seed={seed}: demonstration seeds {seed}..{seed + max_tries} would reach the evaluation seeds "
+            f"(>= {EVAL_SEED_START}); pick a smaller --seed"
+        )
+    if root.exists() and any(root.iterdir()) and not force:
+        raise ValueError(f"root={root} already exists; pass --force to overwrite it")
+    root.parent.mkdir(parents=True, exist_ok=True)
+    tmp_parent = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
+    tmp_root = tmp_parent / root.name
+    try:
+        ds = LeRobotDataset.create(
+            repo_id=repo_id,
+            fps=FPS,
+            features=features(images),
+            root=tmp_root,
+            robot_type="pusht",
+            use_videos=True,
+        )
+        kept, tried, frames, seeds = 0, 0, 0, []
+        ctx = mp.get_context("spawn")
+        pool = ctx.Pool(workers) if workers > 1 else None
+        bar = tqdm(total=episodes, desc="expert episodes", disable=not progress)
+        try:
+            args = ((s, images, hold_steps, max_steps) for s in range(seed, seed + max_tries))
+            it = pool.imap(_worker, args) if pool else map(_worker, args)
+            for ep in it:
+                tried += 1
+                if not ep.success:
+                    continue
+                for t in range(len(ep.action)):
+                    frame = {
+                        "observation.state": ep.state[t],
+                        "observation.environment_state": ep.env_state[t],
+                        "action": ep.action[t],
+                        "next.reward": ep.reward[t : t + 1],
+                        "next.success": ep.success_flags[t : t + 1],
+                        "next.done": np.array([t == len(ep.action) - 1]),
+                        "task": TASK,
+                    }
+                    if images:
+                        frame["observation.image"] = ep.images[t]
+                    ds.add_frame(frame)
+                ds.save_episode()
+                kept, frames = kept + 1, frames + len(ep.action)
+                seeds.append(ep.seed)
+                bar.update(1)
+                if kept == episodes:
+                    break
+        finally:
+            bar.close()
+            if pool:
+                pool.terminate()
+        ds.finalize()
+        if kept < episodes:
+            raise RuntimeError(f"only {kept} of {tried} expert episodes succeeded; wanted {episodes}")
+        if root.exists():
+            shutil.rmtree(root)
+        tmp_root.rename(root)
+    finally:
+        shutil.rmtree(tmp_parent, ignore_errors=True)
+    return {"episodes": kept, "tried": tried, "frames": frames, "seeds": seeds, "root": str(root)}
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(prog="dcdp-pusht-demos", description=__doc__.splitlines()[0])
+    p.add_argument("--root", required=True, help="output directory of the dataset")
+    p.add_argument("--repo-id", default="local/pusht_expert")
+    p.add_argument("--episodes", type=int, default=200, help="successful episodes to keep")
+    p.add_argument("--images", action="store_true", help="also record a 96x96 observation.image video")
+    p.add_argument("--seed", type=int, default=0, help="first env seed (must stay below 100000)")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--hold-steps", type=int, default=3, help="still frames recorded after success")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --root")
+    a = p.parse_args(argv)
+    try:
+        info = record_demonstrations(
+            a.root, a.repo_id, a.episodes, a.seed, a.images, a.workers, a.hold_steps, force=a.force
+        )
+    except ValueError as e:
+        sys.exit(f"dcdp-pusht-demos: error: {e}")
+    print(
+        f"wrote {info['episodes']} episodes ({info['frames']} frames, {info['tried']} tried) "
+        f"to {info['root']}"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,150 @@
+"""Tiny, offline building blocks for the tests: datasets, random-init bases, DCDP configs and batches."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+from lerobot.configs.types import FeatureType
+from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+from lerobot.utils.feature_utils import dataset_to_policy_features
+
+
+def policy_features(root: Path) -> tuple[dict, dict, dict]:
+    meta = LeRobotDatasetMetadata("local/test", root=root)
+    feats = dataset_to_policy_features(meta.features)
+    out = {k: f for k, f in feats.items() if f.type is FeatureType.ACTION}
+    inp = {k: f for k, f in feats.items() if k not in out}
+    return inp, out, meta.stats
+
+
+def make_tiny_base(kind: str, out_dir: Path, dataset_root: Path, seed: int = 0, **overrides) -> Path:
+    """Save a random-init diffusion or ACT policy (with its processors) as a pretrained_model dir."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    torch.manual_seed(seed)
+    inp, out, stats = policy_features(dataset_root)
+    inp = {k: v for k, v in inp.items() if v.type is not FeatureType.VISUAL or overrides.pop("images", False)}
+    if kind == "diffusion":
+        from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+        from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+
+        params = dict(
+            n_obs_steps=2,
+            horizon=16,
+            n_action_steps=8,
+            down_dims=(16, 32),
+            diffusion_step_embed_dim=16,
+            noise_scheduler_type="DDIM",
+            num_inference_steps=3,
+            num_train_timesteps=20,
+            drop_n_last_frames=7,
+            pretrained_backbone_weights=None,
+            kernel_size=3,
+            n_groups=4,
+        )
+        params.update(overrides)
+        cfg = DiffusionConfig(
+            input_features=inp, output_features=out, device="cpu", push_to_hub=False, **params
+        )
+        policy = DiffusionPolicy(cfg)
+    elif kind == "act":
+        from lerobot.policies.act.configuration_act import ACTConfig
+        from lerobot.policies.act.modeling_act import ACTPolicy
+
+        params = dict(
+            chunk_size=16,
+            n_action_steps=8,
+            dim_model=32,
+            n_heads=2,
+            dim_feedforward=64,
+            n_encoder_layers=1,
+            n_decoder_layers=1,
+            latent_dim=8,
+            n_vae_encoder_layers=1,
+            pretrained_backbone_weights=None,
+        )
+        params.update(overrides)
+        cfg = ACTConfig(input_features=inp, output_features=out, device="cpu", push_to_hub=False, **params)
+        policy = ACTPolicy(cfg)
+    else:
+        raise ValueError(kind)
+    pre, post = make_pre_post_processors(cfg, dataset_stats=stats)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    policy.save_pretrained(out_dir)
+    pre.save_pretrained(out_dir)
+    post.save_pretrained(out_dir)
+    return out_dir
+
+
+def make_dcdp_config(base: Path, dataset_root: Path, **overrides):
+    """A tiny DCDPConfig wired to ``base`` with the features of ``dataset_root``."""
+    import lerobot_policy_dcdp  # noqa: F401
+    from lerobot_dcdp.configuration_dcdp import DCDPConfig
+
+    inp, out, _ = policy_features(dataset_root)
+    inp = {k: v for k, v in inp.items() if v.type is not FeatureType.VISUAL}
+    params = dict(
+        feature_dim=32, n_heads=4, state_hidden_dim=32, encoder_hidden_dim=32, decoder_hidden_dim=32
+    )
+    params.update(overrides)
+    return DCDPConfig(
+        base_policy_path=str(base),
+        input_features=inp,
+        output_features=out,
+        device="cpu",
+        push_to_hub=False,
+        **params,
+    )
+
+
+def make_dcdp_policy(base: Path, dataset_root: Path, seed: int = 0, **overrides):
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+
+    torch.manual_seed(seed)
+    _, _, stats = policy_features(dataset_root)
+    return DCDPPolicy(make_dcdp_config(base, dataset_root, **overrides), dataset_stats=stats)
+
+
+def training_batches(policy, dataset_root: Path, batch_size: int = 16, seed: int = 0):
+    """Endless normalised training batches with the policy's delta timestamps, through its processors."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+
+    cfg = policy.config
+    meta = LeRobotDatasetMetadata("local/test", root=dataset_root)
+    obs_keys = [k for k in meta.features if k.startswith("observation.") and k in cfg.input_features]
+    dt = {k: [i / meta.fps for i in cfg.observation_delta_indices] for k in obs_keys}
+    dt["action"] = [i / meta.fps for i in cfg.action_delta_indices]
+    ds = LeRobotDataset("local/test", root=dataset_root, delta_timestamps=dt)
+    pre, _ = make_dcdp_pre_post_processors(cfg)
+    gen = torch.Generator().manual_seed(seed)
+    while True:
+        for batch in torch.utils.data.DataLoader(ds, batch_size=batch_size, shuffle=True, generator=gen):
+            yield pre(batch)
+
+
+def env_observations(n_envs: int, steps: int, seed: int = 0) -> list[dict]:
+    """Raw observations of gym-pusht rollouts under random actions, as LeRobot's env wrapper names them."""
+    import gym_pusht  # noqa: F401
+    import gymnasium as gym
+    import numpy as np
+
+    envs = [gym.make("gym_pusht/PushT-v0", obs_type="environment_state_agent_pos") for _ in range(n_envs)]
+    obs = [e.reset(seed=seed + i)[0] for i, e in enumerate(envs)]
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(steps):
+        out.append(
+            {
+                "observation.state": torch.tensor(
+                    np.stack([o["agent_pos"] for o in obs]), dtype=torch.float32
+                ),
+                "observation.environment_state": torch.tensor(
+                    np.stack([o["environment_state"] for o in obs]), dtype=torch.float32
+                ),
+            }
+        )
+        obs = [e.step(rng.uniform(100, 400, 2))[0] for e in envs]
+    return out

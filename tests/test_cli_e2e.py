@@ -1,0 +1,144 @@
+"""The real CLIs as a user runs them: discovery, lerobot-train (stage 1), resume, lerobot-eval (stage 2)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from safetensors.torch import load_file, save_file
+
+BIN = Path(sys.executable).parent
+ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
+OBS = "environment_state_agent_pos"
+
+
+def run(args: list[str], cwd: Path, ok: bool = True) -> subprocess.CompletedProcess:
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=600, env=ENV, cwd=cwd)
+    if ok:
+        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-6000:]
+    return proc
+
+
+def train(base: Path, data: Path, out: Path, steps: int = 6, extra: tuple[str, ...] = ()) -> Path:
+    run(
+        [
+            str(BIN / "lerobot-train"),
+            "--policy.type=dcdp",
+            f"--policy.base_policy_path={base}",
+            "--dataset.repo_id=local/test",
+            f"--dataset.root={data}",
+            "--policy.device=cpu",
+            "--policy.push_to_hub=false",
+            f"--output_dir={out}",
+            f"--steps={steps}",
+            "--batch_size=8",
+            f"--save_freq={steps}",
+            "--log_freq=1",
+            "--num_workers=0",
+            "--wandb.enable=false",
+            "--policy.feature_dim=32",
+            "--policy.n_heads=4",
+            *extra,
+        ],
+        cwd=out.parent,
+    )
+    return out / "checkpoints" / "last" / "pretrained_model"
+
+
+def evaluate(policy_dir: Path, out: Path, *extra: str, ok: bool = True) -> subprocess.CompletedProcess:
+    return run(
+        [
+            str(BIN / "lerobot-eval"),
+            f"--policy.path={policy_dir}",
+            "--env.type=pusht_perturbed",
+            "--env.perturbation=constant",
+            "--env.magnitude=1",
+            f"--env.obs_type={OBS}",
+            "--env.episode_length=12",
+            "--eval.n_episodes=2",
+            "--eval.batch_size=2",
+            "--eval.use_async_envs=false",
+            f"--output_dir={out}",
+            "--policy.device=cpu",
+            *extra,
+        ],
+        cwd=out.parent,
+        ok=ok,
+    )
+
+
+def test_discovery_through_lerobot() -> None:
+    code = (
+        "from lerobot.utils.import_utils import register_third_party_plugins as r; r();"
+        "from lerobot.policies.factory import get_policy_class, make_policy_config;"
+        "from lerobot.envs.configs import EnvConfig;"
+        "print(get_policy_class('dcdp').__name__, EnvConfig.get_choice_class('pusht_perturbed').__name__)"
+    )
+    proc = run([sys.executable, "-c", code], cwd=Path.cwd())
+    assert proc.stdout.split()[-2:] == ["DCDPPolicy", "PushTPerturbedEnvConfig"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["diffusion", "act"])
+def test_train_then_eval(kind, diffusion_base, act_base, demo_root, tmp_path) -> None:
+    base = diffusion_base if kind == "diffusion" else act_base
+    ckpt = train(base, demo_root, tmp_path / "train")
+    cfg = json.loads((ckpt / "config.json").read_text())
+    assert cfg["type"] == "dcdp" and cfg["base_policy_type"] == kind and len(cfg["base_weights_sha256"]) == 64
+    weights = load_file(ckpt / "model.safetensors")
+    base_weights = load_file(base / "model.safetensors")
+    assert not set(weights) & set(base_weights)
+    assert (
+        sum(t.numel() for t in weights.values()) < sum(t.numel() for t in base_weights.values())
+        or kind == "act"
+    )
+    # the checkpoint normalises with the base's statistics, not the dataset's
+    assert (ckpt / "policy_preprocessor.json").read_text() == (base / "policy_preprocessor.json").read_text()
+    for mode in ("dcdp", "open_loop") if kind == "diffusion" else ("dcdp", "temporal_ensemble"):
+        out = tmp_path / f"eval_{mode}"
+        evaluate(ckpt, out, f"--policy.execution={mode}")
+        info = json.loads((out / "eval_info.json").read_text())["overall"]
+        assert info["n_episodes"] == 2 and 0.0 <= info["avg_max_reward"] <= 1.0
+
+
+@pytest.mark.slow
+def test_resume_continues_from_checkpoint(diffusion_base, demo_root, tmp_path) -> None:
+    out = tmp_path / "train"
+    ckpt = train(diffusion_base, demo_root, out, steps=2)
+    before = load_file(ckpt / "model.safetensors")
+    # resume (as after a kill at step 2) and run on to step 4
+    run(
+        [
+            str(BIN / "lerobot-train"),
+            "--resume=true",
+            f"--config_path={ckpt / 'train_config.json'}",
+            "--steps=4",
+            "--save_freq=2",
+        ],
+        cwd=tmp_path,
+    )
+    state = json.loads((out / "checkpoints" / "000004" / "training_state" / "training_step.json").read_text())
+    assert state["step"] == 4
+    after = load_file(out / "checkpoints" / "000004" / "pretrained_model" / "model.safetensors")
+    assert set(after) == set(before) and any(not torch.equal(after[k], before[k]) for k in before)
+    assert (out / "checkpoints" / "000002").is_dir()
+
+
+@pytest.mark.slow
+def test_eval_refuses_a_changed_base(diffusion_base, demo_root, tmp_path) -> None:
+    base = tmp_path / "base"
+    shutil.copytree(diffusion_base, base)
+    ckpt = train(base, demo_root, tmp_path / "train", steps=2)
+    weights = load_file(base / "model.safetensors")
+    name = sorted(weights)[0]
+    weights[name] = weights[name] + 1e-3
+    save_file(weights, base / "model.safetensors")
+    proc = evaluate(ckpt, tmp_path / "eval", ok=False)
+    assert proc.returncode != 0
+    assert "base_weights_sha256 mismatch" in proc.stdout + proc.stderr

@@ -1,0 +1,76 @@
+"""Every validation error names the bad field."""
+
+from __future__ import annotations
+
+import pytest
+from helpers import make_dcdp_config, make_dcdp_policy
+
+from lerobot_dcdp.configuration_dcdp import DCDPConfig
+
+
+def test_missing_base_is_refused() -> None:
+    with pytest.raises(ValueError, match="base_policy_path"):
+        DCDPConfig(device="cpu")
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("n_history", 1),
+        ("execution", "sometimes"),
+        ("n_action_steps", 0),
+        ("te_weight", 0.0),
+        ("backbone", "vit"),
+        ("kl_weight", -1.0),
+    ],
+)
+def test_bad_values_name_the_field(field: str, value) -> None:
+    with pytest.raises(ValueError, match=field):
+        DCDPConfig(base_policy_path="x/y", device="cpu", **{field: value})
+
+
+def test_delta_indices_cover_history_and_executed_chunk() -> None:
+    cfg = DCDPConfig(base_policy_path="x/y", device="cpu", n_history=5, n_action_steps=8)
+    assert cfg.observation_delta_indices == list(range(-4, 8))
+    assert cfg.action_delta_indices == list(range(8))
+    opt = cfg.get_optimizer_preset()
+    assert (opt.lr, opt.weight_decay, opt.grad_clip_norm) == (1e-4, 1e-4, 1.0)
+
+
+def test_horizon_longer_than_base_chunk(diffusion_base, demo_root) -> None:
+    with pytest.raises(ValueError, match="n_action_steps=9 exceeds the base's chunk"):
+        make_dcdp_policy(diffusion_base, demo_root, n_action_steps=9)
+
+
+def test_unknown_base_path(demo_root, tmp_path) -> None:
+    with pytest.raises(ValueError, match="base_policy_path"):
+        make_dcdp_policy(tmp_path / "nowhere" / "deep" / "x", demo_root)
+
+
+def test_feature_mismatch_names_the_feature(diffusion_base, demo_root) -> None:
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+
+    cfg = make_dcdp_config(diffusion_base, demo_root)
+    cfg.input_features["observation.environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(10,))
+    with pytest.raises(ValueError, match="observation.environment_state"):
+        DCDPPolicy(cfg)
+    cfg = make_dcdp_config(diffusion_base, demo_root)
+    del cfg.input_features["observation.environment_state"]
+    with pytest.raises(ValueError, match="observation.environment_state"):
+        DCDPPolicy(cfg)
+    cfg = make_dcdp_config(diffusion_base, demo_root)
+    cfg.output_features["action"] = PolicyFeature(type=FeatureType.ACTION, shape=(3,))
+    with pytest.raises(ValueError, match="action"):
+        DCDPPolicy(cfg)
+
+
+def test_changed_base_weights_are_refused(diffusion_base, demo_root) -> None:
+    from lerobot_dcdp.modeling_dcdp import BaseMismatchError
+
+    cfg = make_dcdp_config(diffusion_base, demo_root, base_weights_sha256="0" * 64)
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+
+    with pytest.raises(BaseMismatchError, match="base_weights_sha256 mismatch"):
+        DCDPPolicy(cfg)
