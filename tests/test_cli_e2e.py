@@ -94,10 +94,6 @@ def test_train_then_eval(kind, diffusion_base, act_base, demo_root, tmp_path) ->
     weights = load_file(ckpt / "model.safetensors")
     base_weights = load_file(base / "model.safetensors")
     assert not set(weights) & set(base_weights)
-    assert (
-        sum(t.numel() for t in weights.values()) < sum(t.numel() for t in base_weights.values())
-        or kind == "act"
-    )
     # the checkpoint normalises with the base's statistics, not the dataset's
     assert (ckpt / "policy_preprocessor.json").read_text() == (base / "policy_preprocessor.json").read_text()
     for mode in ("dcdp", "open_loop") if kind == "diffusion" else ("dcdp", "temporal_ensemble"):

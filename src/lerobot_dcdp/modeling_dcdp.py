@@ -210,6 +210,14 @@ class DCDPPolicy(PreTrainedPolicy):
         self._base.to(*args, **kwargs)
         return self
 
+    def generate_model_card(self, dataset_repo_id, model_type, license, tags, cfg=None, dataset_meta=None):
+        """DCDP's own card (base reference and hash, measured numbers, eval command); built offline."""
+        from lerobot_dcdp.model_card import make_model_card
+
+        return make_model_card(
+            self.config, state_dict_sha256(self.state_dict()), dataset_repo_id, license, tags
+        )
+
     def get_optim_params(self) -> list[torch.nn.Parameter]:
         return [p for p in self.parameters() if p.requires_grad]
 
