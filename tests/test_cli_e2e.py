@@ -7,6 +7,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -104,26 +105,50 @@ def test_train_then_eval(kind, diffusion_base, act_base, demo_root, tmp_path) ->
 
 
 @pytest.mark.slow
-def test_resume_continues_from_checkpoint(diffusion_base, demo_root, tmp_path) -> None:
+def test_killed_training_resumes_from_checkpoint(diffusion_base, demo_root, tmp_path) -> None:
     out = tmp_path / "train"
-    ckpt = train(diffusion_base, demo_root, out, steps=2)
-    before = load_file(ckpt / "model.safetensors")
-    # resume (as after a kill at step 2) and run on to step 4
+    args = [
+        str(BIN / "lerobot-train"),
+        "--policy.type=dcdp",
+        f"--policy.base_policy_path={diffusion_base}",
+        "--dataset.repo_id=local/test",
+        f"--dataset.root={demo_root}",
+        "--policy.device=cpu",
+        "--policy.push_to_hub=false",
+        f"--output_dir={out}",
+        "--steps=100000",
+        "--batch_size=8",
+        "--save_freq=2",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        "--policy.feature_dim=32",
+        "--policy.n_heads=4",
+    ]
+    proc = subprocess.Popen(args, cwd=tmp_path, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    first = out / "checkpoints" / "000002" / "training_state" / "training_step.json"
+    while not first.exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.5)
+    time.sleep(1.0)
+    proc.kill()  # SIGKILL mid-run: no clean shutdown
+    proc.wait()
+    assert first.exists()
+    last = (out / "checkpoints" / "last").resolve()
+    step = json.loads((last / "training_state" / "training_step.json").read_text())["step"]
+    before = load_file(last / "pretrained_model" / "model.safetensors")
     run(
         [
             str(BIN / "lerobot-train"),
             "--resume=true",
-            f"--config_path={ckpt / 'train_config.json'}",
-            "--steps=4",
-            "--save_freq=2",
+            f"--config_path={last / 'pretrained_model' / 'train_config.json'}",
+            f"--steps={step + 2}",
         ],
         cwd=tmp_path,
     )
-    state = json.loads((out / "checkpoints" / "000004" / "training_state" / "training_step.json").read_text())
-    assert state["step"] == 4
-    after = load_file(out / "checkpoints" / "000004" / "pretrained_model" / "model.safetensors")
+    final = out / "checkpoints" / f"{step + 2:06d}"
+    assert json.loads((final / "training_state" / "training_step.json").read_text())["step"] == step + 2
+    after = load_file(final / "pretrained_model" / "model.safetensors")
     assert set(after) == set(before) and any(not torch.equal(after[k], before[k]) for k in before)
-    assert (out / "checkpoints" / "000002").is_dir()
 
 
 @pytest.mark.slow
@@ -138,3 +163,40 @@ def test_eval_refuses_a_changed_base(diffusion_base, demo_root, tmp_path) -> Non
     proc = evaluate(ckpt, tmp_path / "eval", ok=False)
     assert proc.returncode != 0
     assert "base_weights_sha256 mismatch" in proc.stdout + proc.stderr
+
+
+@pytest.mark.slow
+def test_accelerate_two_cpu_processes(diffusion_base, demo_root, tmp_path) -> None:
+    """LeRobot's multi-GPU path (accelerate + DDP) with 2 CPU processes: the frozen base is outside DDP,
+    and an ablation that leaves alpha without gradients raises no unused-parameter error."""
+    out = tmp_path / "acc"
+    run(
+        [
+            str(BIN / "accelerate"),
+            "launch",
+            "--cpu",
+            "--num_processes=2",
+            "--num_machines=1",
+            "--mixed_precision=no",
+            "--dynamo_backend=no",
+            str(BIN / "lerobot-train"),
+            "--policy.type=dcdp",
+            f"--policy.base_policy_path={diffusion_base}",
+            "--dataset.repo_id=local/test",
+            f"--dataset.root={demo_root}",
+            "--policy.device=cpu",
+            "--policy.push_to_hub=false",
+            f"--output_dir={out}",
+            "--steps=3",
+            "--batch_size=4",
+            "--save_freq=3",
+            "--num_workers=0",
+            "--wandb.enable=false",
+            "--policy.feature_dim=32",
+            "--policy.n_heads=4",
+            "--policy.use_diff_cross_attention=false",
+            "--policy.use_diff_loss=false",
+        ],
+        cwd=tmp_path,
+    )
+    assert (out / "checkpoints" / "000003" / "pretrained_model" / "model.safetensors").is_file()

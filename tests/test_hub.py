@@ -30,7 +30,9 @@ def fake_hub(tmp_path, monkeypatch):
         names = []
         for f in sorted(Path(folder_path).rglob("*")):
             rel = str(f.relative_to(folder_path))
-            if not f.is_file() or (allow_patterns and not any(fnmatch.fnmatch(rel, p) for p in allow_patterns)):
+            if not f.is_file() or (
+                allow_patterns and not any(fnmatch.fnmatch(rel, p) for p in allow_patterns)
+            ):
                 continue
             if ignore_patterns and any(fnmatch.fnmatch(rel, p) for p in ignore_patterns):
                 continue
@@ -38,7 +40,9 @@ def fake_hub(tmp_path, monkeypatch):
             shutil.copy(f, hub / repo_id / rel)
             names.append(rel)
         calls.append(("upload_folder", repo_id, names))
-        return SimpleNamespace(commit_url=f"local://{repo_id}", oid="0", repo_url=SimpleNamespace(url=repo_id))
+        return SimpleNamespace(
+            commit_url=f"local://{repo_id}", oid="0", repo_url=SimpleNamespace(url=repo_id)
+        )
 
     monkeypatch.setattr(HfApi, "create_repo", create_repo)
     monkeypatch.setattr(HfApi, "upload_folder", upload_folder)
@@ -52,15 +56,23 @@ def test_push_uploads_the_corrector_only_and_it_loads_back(diffusion_base, demo_
     hub, calls = fake_hub
     policy = make_dcdp_policy(diffusion_base, demo_root)
     policy.config.repo_id = "user/dcdp-tiny"
-    cfg = TrainPipelineConfig(dataset=DatasetConfig(repo_id="local/test", root=str(demo_root)), policy=policy.config)
+    cfg = TrainPipelineConfig(
+        dataset=DatasetConfig(repo_id="local/test", root=str(demo_root)), policy=policy.config
+    )
     policy.push_model_to_hub(cfg)
     pre, post = make_dcdp_pre_post_processors(policy.config)
     pre.push_to_hub("user/dcdp-tiny")
     post.push_to_hub("user/dcdp-tiny")
 
     uploaded = sorted({n for c in calls if c[0] == "upload_folder" for n in c[2]})
-    assert {"config.json", "model.safetensors", "README.md", "train_config.json", "policy_preprocessor.json",
-            "policy_postprocessor.json"} <= set(uploaded)
+    assert {
+        "config.json",
+        "model.safetensors",
+        "README.md",
+        "train_config.json",
+        "policy_preprocessor.json",
+        "policy_postprocessor.json",
+    } <= set(uploaded)
     repo = hub / "user/dcdp-tiny"
     weights = load_file(repo / "model.safetensors")
     base_keys = set(load_file(diffusion_base / "model.safetensors"))

@@ -6,7 +6,6 @@ import gym_pusht  # noqa: F401
 import gymnasium as gym
 import numpy as np
 import pytest
-import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_dcdp.pusht.demos import record_demonstrations, run_episode
@@ -37,7 +36,7 @@ def test_dataset_loads_and_every_episode_succeeds(demo_root) -> None:
 def test_actions_are_smooth_and_replay_reproduces_success(demo_root) -> None:
     ds = LeRobotDataset("local/test", root=demo_root)
     ep = np.asarray(ds.hf_dataset["episode_index"])
-    actions = torch.stack(ds.hf_dataset["action"]).numpy()
+    actions = np.stack([np.asarray(a, dtype=np.float32) for a in ds.hf_dataset["action"]])
     idx = np.flatnonzero(ep == 0)
     jumps = np.linalg.norm(np.diff(actions[idx], axis=0), axis=1)
     assert jumps.max() <= 20.0 + 1e-3  # the expert's max_step
