@@ -38,8 +38,8 @@ class Episode:
     images: np.ndarray | None  # (T, 96, 96, 3) uint8
 
 
-def features(images: bool) -> dict:
-    """LeRobotDataset feature spec of the demonstrations."""
+def features(images: bool, keypoints: bool = True) -> dict:
+    """LeRobotDataset feature spec of the demonstrations (``keypoints=False`` drops environment_state)."""
     feats = {
         "observation.state": {"dtype": "float32", "shape": (2,), "names": ["x", "y"]},
         "observation.environment_state": {
@@ -52,6 +52,8 @@ def features(images: bool) -> dict:
         "next.success": {"dtype": "bool", "shape": (1,), "names": None},
         "next.done": {"dtype": "bool", "shape": (1,), "names": None},
     }
+    if not keypoints:
+        del feats["observation.environment_state"]
     if images:
         feats["observation.image"] = {
             "dtype": "video",
@@ -61,7 +63,9 @@ def features(images: bool) -> dict:
     return feats
 
 
-def run_episode(seed: int, images: bool = False, hold_steps: int = 3, max_steps: int = 300) -> Episode:
+def run_episode(
+    seed: int, images: bool = False, hold_steps: int = 3, max_steps: int = 300, expert_config=None
+) -> Episode:
     """One expert episode from env seed ``seed``; ``hold_steps`` still frames are recorded after success."""
     import gym_pusht  # noqa: F401
     import gymnasium as gym
@@ -74,7 +78,7 @@ def run_episode(seed: int, images: bool = False, hold_steps: int = 3, max_steps:
         max_episode_steps=max_steps + hold_steps + 1,
         disable_env_checker=True,
     )
-    expert = ScriptedExpert(seed=seed)
+    expert = ScriptedExpert(expert_config, seed=seed)
     obs, _ = env.reset(seed=seed)
     u = env.unwrapped
     prev = np.array(u.agent.position, dtype=float)
@@ -133,6 +137,7 @@ def record_demonstrations(
     max_steps: int = 300,
     force: bool = False,
     progress: bool = True,
+    keypoints: bool = True,
 ) -> dict:
     """Write ``episodes`` successful expert episodes to a LeRobotDataset v3 at ``root``.
 
@@ -147,6 +152,10 @@ def record_demonstrations(
     from tqdm import tqdm
 
     root = Path(root)
+    if not keypoints and not images:
+        raise ValueError(
+            "keypoints=False needs images=True: the dataset would hold no observation of the block"
+        )
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     if seed < 0:
@@ -166,7 +175,7 @@ def record_demonstrations(
         ds = LeRobotDataset.create(
             repo_id=repo_id,
             fps=FPS,
-            features=features(images),
+            features=features(images, keypoints),
             root=tmp_root,
             robot_type="pusht",
             use_videos=True,
@@ -185,13 +194,14 @@ def record_demonstrations(
                 for t in range(len(ep.action)):
                     frame = {
                         "observation.state": ep.state[t],
-                        "observation.environment_state": ep.env_state[t],
                         "action": ep.action[t],
                         "next.reward": ep.reward[t : t + 1],
                         "next.success": ep.success_flags[t : t + 1],
                         "next.done": np.array([t == len(ep.action) - 1]),
                         "task": TASK,
                     }
+                    if keypoints:
+                        frame["observation.environment_state"] = ep.env_state[t]
                     if images:
                         frame["observation.image"] = ep.images[t]
                     ds.add_frame(frame)
@@ -222,6 +232,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--repo-id", default="local/pusht_expert")
     p.add_argument("--episodes", type=int, default=200, help="successful episodes to keep")
     p.add_argument("--images", action="store_true", help="also record a 96x96 observation.image video")
+    p.add_argument(
+        "--no-keypoints",
+        action="store_true",
+        help="leave out observation.environment_state (an image-only dataset)",
+    )
     p.add_argument("--seed", type=int, default=0, help="first env seed (must stay below 100000)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--hold-steps", type=int, default=3, help="still frames recorded after success")
@@ -229,7 +244,15 @@ def main(argv: list[str] | None = None) -> None:
     a = p.parse_args(argv)
     try:
         info = record_demonstrations(
-            a.root, a.repo_id, a.episodes, a.seed, a.images, a.workers, a.hold_steps, force=a.force
+            a.root,
+            a.repo_id,
+            a.episodes,
+            a.seed,
+            a.images,
+            a.workers,
+            a.hold_steps,
+            force=a.force,
+            keypoints=not a.no_keypoints,
         )
     except ValueError as e:
         sys.exit(f"dcdp-pusht-demos: error: {e}")
