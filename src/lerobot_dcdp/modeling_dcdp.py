@@ -253,7 +253,7 @@ class DCDPPolicy(PreTrainedPolicy):
             "recon_loss": recon.item(),
             "kl_loss": kl.item(),
             "diff_loss": l_diff.item(),
-            "alpha": float(self.extractor.alpha),
+            "alpha": float(self.extractor.alpha.detach()),
         }
 
     # ------------------------------------------------------------------ stage 2
