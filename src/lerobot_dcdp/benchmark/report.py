@@ -10,6 +10,7 @@ METHOD_NAMES = {
     "temporal_ensemble": "Temporal ensemble (H=1, 0.5)",
     "dcdp": "DCDP (H=8)",
 }
+COLORS = {"open_loop": "C0", "closed_loop": "C1", "temporal_ensemble": "C2", "dcdp": "C3"}
 CONDITION_ORDER = ["static", "constant_0.5", "random_0.5", "constant_1.0", "random_1.0"]
 
 
@@ -95,11 +96,14 @@ def plot(results: dict, path: Path) -> None:
                     [100 * y["success_rate"] for y in ys if y],
                     marker="o",
                     label=name,
+                    color=COLORS[m],
                 )
             ax.set_title(f"{label} base, {kind} drift")
             ax.set_xlabel("block drift (px / control step)")
             ax.set_ylabel("success (%)")
             ax.set_ylim(-2, 102)
+            ax.set_xlim(-0.05, 1.05)
+            ax.set_xticks(xs)
             ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=8)
     fig.tight_layout()

@@ -1,0 +1,73 @@
+"""The benchmark's bookkeeping: cell reuse rules and the generated tables, on a hand-made results dict."""
+
+from __future__ import annotations
+
+from lerobot_dcdp.benchmark.report import table1, table2, write_report
+from lerobot_dcdp.benchmark.run import _fresh
+
+IDENT = {
+    "corrector_sha256": "c1",
+    "base_weights_sha256": "b1",
+    "base": "models/b",
+    "base_type": "diffusion",
+    "corrector": "models/c",
+    "corrector_params": 10,
+}
+
+
+def cell(method: str, cond: str, sr: float, score: float) -> dict:
+    return {
+        "model": "m",
+        "method": method,
+        "condition": cond,
+        "episodes": 2,
+        "seeds": [100000, 100001],
+        "max_steps": 300,
+        "success_rate": sr,
+        "score": score,
+        "identity": IDENT,
+    }
+
+
+def results() -> dict:
+    return {
+        "cells": {
+            "m|open_loop|static": cell("open_loop", "static", 0.5, 0.9),
+            "m|dcdp|static": cell("dcdp", "static", 1.0, 0.95),
+            "m|open_loop|constant_0.5": cell("open_loop", "constant_0.5", 0.0, 0.5),
+            "m|dcdp|constant_0.5": cell("dcdp", "constant_0.5", 0.5, 0.8),
+        },
+        "latency": {
+            "m|open_loop": {"model": "m", "method": "open_loop", "mean_ms": 4.0, "p95_ms": 5.0},
+            "m|dcdp": {"model": "m", "method": "dcdp", "mean_ms": 4.2, "p95_ms": 5.5},
+            "m|closed_loop": {"model": "m", "method": "closed_loop", "mean_ms": 33.6, "p95_ms": 40.0},
+        },
+        "models": {"m": IDENT},
+        "command": "dcdp-benchmark --episodes 2",
+        "machine": {"cpu": "test", "cores": 2},
+    }
+
+
+def test_tables_and_report(tmp_path) -> None:
+    r = results()
+    t1 = table1(r, "m")
+    assert "| Open loop (H=8) | 50 % / 0.900 | 0 % / 0.500 |" in t1
+    assert "| DCDP (H=8) | 100 % / 0.950 | 50 % / 0.800 |" in t1
+    t2 = table2(r, "m")
+    assert "DCDP / open loop = 1.050" in t2 and "closed loop / DCDP = 8.00" in t2
+    write_report(r, tmp_path / "RESULTS.md", tmp_path / "benchmark.json")
+    text = (tmp_path / "RESULTS.md").read_text()
+    assert "dcdp-benchmark --episodes 2" in text and "constant_0.5: DCDP - open loop = +50 points" in text
+    assert (tmp_path / "success_vs_perturbation.png").stat().st_size > 0
+
+
+def test_cells_are_reused_only_for_the_same_models_and_protocol() -> None:
+    c = cell("dcdp", "static", 1.0, 1.0)
+    seeds = [100000, 100001]
+    assert _fresh(c, IDENT, seeds, 300)
+    assert not _fresh(c, {**IDENT, "corrector_sha256": "other"}, seeds, 300)
+    assert not _fresh(c, {**IDENT, "base_weights_sha256": "other"}, seeds, 300)
+    assert not _fresh(c, IDENT, [5, 6], 300) and not _fresh(c, IDENT, seeds, 200)
+    # a baseline never calls the corrector: a new corrector on the same base reuses it
+    assert _fresh(cell("open_loop", "static", 0.5, 0.9), {**IDENT, "corrector_sha256": "other"}, seeds, 300)
+    assert not _fresh(None, IDENT, seeds, 300)
