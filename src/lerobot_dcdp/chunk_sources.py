@@ -7,6 +7,7 @@ step). They call the base's own public methods so the base runs exactly as LeRob
 
 from __future__ import annotations
 
+import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION, OBS_IMAGES
@@ -74,8 +75,6 @@ def _without_action(batch: dict[str, Tensor]) -> dict[str, Tensor]:
 
 
 def _stack_images(batch: dict[str, Tensor], keys) -> Tensor:
-    import torch
-
     return torch.stack([batch[k] for k in keys], dim=-4)
 
 

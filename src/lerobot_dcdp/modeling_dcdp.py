@@ -15,7 +15,6 @@ loop, temporal ensemble) are other execution modes of this same loop.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 
 import torch
 from lerobot.configs.types import FeatureType, NormalizationMode
@@ -332,4 +331,4 @@ class DCDPPolicy(PreTrainedPolicy):
         return from_unit_range(self.decoder(z, feats), self.action_low, self.action_high)
 
 
-__all__: list[str | Callable] = ["DCDPPolicy", "BaseMismatchError"]
+__all__ = ["DCDPPolicy", "BaseMismatchError"]
