@@ -26,29 +26,30 @@ def run(args: list[str], cwd: Path, ok: bool = True) -> subprocess.CompletedProc
     return proc
 
 
+def train_args(base: Path, data: Path, out: Path, steps: int, save_freq: int, batch: int = 8) -> list[str]:
+    """``lerobot-train`` arguments of a tiny stage-1 run (the command a user types, shrunk)."""
+    return [
+        str(BIN / "lerobot-train"),
+        "--policy.type=dcdp",
+        f"--policy.base_policy_path={base}",
+        "--dataset.repo_id=local/test",
+        f"--dataset.root={data}",
+        "--policy.device=cpu",
+        "--policy.push_to_hub=false",
+        f"--output_dir={out}",
+        f"--steps={steps}",
+        f"--batch_size={batch}",
+        f"--save_freq={save_freq}",
+        "--log_freq=1",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        "--policy.feature_dim=32",
+        "--policy.n_heads=4",
+    ]
+
+
 def train(base: Path, data: Path, out: Path, steps: int = 6, extra: tuple[str, ...] = ()) -> Path:
-    run(
-        [
-            str(BIN / "lerobot-train"),
-            "--policy.type=dcdp",
-            f"--policy.base_policy_path={base}",
-            "--dataset.repo_id=local/test",
-            f"--dataset.root={data}",
-            "--policy.device=cpu",
-            "--policy.push_to_hub=false",
-            f"--output_dir={out}",
-            f"--steps={steps}",
-            "--batch_size=8",
-            f"--save_freq={steps}",
-            "--log_freq=1",
-            "--num_workers=0",
-            "--wandb.enable=false",
-            "--policy.feature_dim=32",
-            "--policy.n_heads=4",
-            *extra,
-        ],
-        cwd=out.parent,
-    )
+    run([*train_args(base, data, out, steps, steps), *extra], cwd=out.parent)
     return out / "checkpoints" / "last" / "pretrained_model"
 
 
@@ -107,23 +108,7 @@ def test_train_then_eval(kind, diffusion_base, act_base, demo_root, tmp_path) ->
 @pytest.mark.slow
 def test_killed_training_resumes_from_checkpoint(diffusion_base, demo_root, tmp_path) -> None:
     out = tmp_path / "train"
-    args = [
-        str(BIN / "lerobot-train"),
-        "--policy.type=dcdp",
-        f"--policy.base_policy_path={diffusion_base}",
-        "--dataset.repo_id=local/test",
-        f"--dataset.root={demo_root}",
-        "--policy.device=cpu",
-        "--policy.push_to_hub=false",
-        f"--output_dir={out}",
-        "--steps=100000",
-        "--batch_size=8",
-        "--save_freq=2",
-        "--num_workers=0",
-        "--wandb.enable=false",
-        "--policy.feature_dim=32",
-        "--policy.n_heads=4",
-    ]
+    args = train_args(diffusion_base, demo_root, out, steps=100000, save_freq=2)
     proc = subprocess.Popen(args, cwd=tmp_path, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 300
     first = out / "checkpoints" / "000002" / "training_state" / "training_step.json"
@@ -179,21 +164,7 @@ def test_accelerate_two_cpu_processes(diffusion_base, demo_root, tmp_path) -> No
             "--num_machines=1",
             "--mixed_precision=no",
             "--dynamo_backend=no",
-            str(BIN / "lerobot-train"),
-            "--policy.type=dcdp",
-            f"--policy.base_policy_path={diffusion_base}",
-            "--dataset.repo_id=local/test",
-            f"--dataset.root={demo_root}",
-            "--policy.device=cpu",
-            "--policy.push_to_hub=false",
-            f"--output_dir={out}",
-            "--steps=3",
-            "--batch_size=4",
-            "--save_freq=3",
-            "--num_workers=0",
-            "--wandb.enable=false",
-            "--policy.feature_dim=32",
-            "--policy.n_heads=4",
+            *train_args(diffusion_base, demo_root, out, steps=3, save_freq=3, batch=4),
             "--policy.use_diff_cross_attention=false",
             "--policy.use_diff_loss=false",
         ],
