@@ -98,7 +98,7 @@ def plot(results: dict, path: Path) -> None:
                     label=name,
                     color=COLORS[m],
                 )
-            ax.set_title(f"{label} base, {kind} drift")
+            ax.set_title(f"{label}, {kind} drift")
             ax.set_xlabel("block drift (px / control step)")
             ax.set_ylabel("success (%)")
             ax.set_ylim(-2, 102)
@@ -137,7 +137,7 @@ def write_report(results: dict, report: Path, json_path: Path) -> None:
         cells = [c for c in results["cells"].values() if c["model"] == label]
         n = cells[0]["episodes"] if cells else "?"
         parts += [
-            f"## {label} base",
+            f"## {label}",
             "",
             f"Base `{ident['base']}` ({ident['base_type']}, "
             f"weights sha256 `{ident['base_weights_sha256'][:12]}`), "
