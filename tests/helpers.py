@@ -148,3 +148,18 @@ def env_observations(n_envs: int, steps: int, seed: int = 0) -> list[dict]:
         )
         obs = [e.step(rng.uniform(100, 400, 2))[0] for e in envs]
     return out
+
+
+def tiny_train_flags(repo_id: str, root: Path, steps: int = 2, batch: int = 4) -> list[str]:
+    """The ``lerobot-train`` flags every tiny offline CLI run shares (local dataset, CPU, no Hub, no W&B)."""
+    return [
+        f"--dataset.repo_id={repo_id}",
+        f"--dataset.root={root}",
+        "--policy.device=cpu",
+        "--policy.push_to_hub=false",
+        "--wandb.enable=false",
+        "--num_workers=0",
+        f"--batch_size={batch}",
+        f"--steps={steps}",
+        f"--save_freq={steps}",
+    ]

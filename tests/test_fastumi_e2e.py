@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from helpers import tiny_train_flags
 from test_cli_e2e import BIN, run
 from test_fastumi import write_episode
 
@@ -22,17 +23,7 @@ def test_fastumi_to_act_base_to_dcdp_with_images(tmp_path) -> None:
         )
     data = tmp_path / "data"
     convert_fastumi(tmp_path / "raw", "local/umi", data, image_size=32)
-    common = [
-        "--dataset.repo_id=local/umi",
-        f"--dataset.root={data}",
-        "--policy.device=cpu",
-        "--policy.push_to_hub=false",
-        "--wandb.enable=false",
-        "--num_workers=0",
-        "--batch_size=4",
-        "--steps=2",
-        "--save_freq=2",
-    ]
+    common = tiny_train_flags("local/umi", data)
     run(
         [
             str(BIN / "lerobot-train"),

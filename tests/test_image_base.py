@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from helpers import tiny_train_flags
 from test_cli_e2e import BIN, run
 
 from lerobot_dcdp.pusht.demos import record_demonstrations
@@ -18,15 +19,7 @@ def test_image_diffusion_base_trains_and_evaluates(tmp_path) -> None:
         [
             str(BIN / "lerobot-train"),
             "--policy.type=diffusion",
-            "--dataset.repo_id=local/img",
-            f"--dataset.root={data}",
-            "--policy.device=cpu",
-            "--policy.push_to_hub=false",
-            "--wandb.enable=false",
-            "--num_workers=0",
-            "--batch_size=4",
-            "--steps=2",
-            "--save_freq=2",
+            *tiny_train_flags("local/img", data),
             f"--output_dir={tmp_path / 'train'}",
             "--policy.pretrained_backbone_weights=null",
             "--policy.crop_shape=[84,84]",

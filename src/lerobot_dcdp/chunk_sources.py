@@ -1,8 +1,9 @@
 """How a chunk is obtained from each kind of base policy, feeding it the observation history it expects.
 
-Every adapter offers ``reset()``, ``observe(batch)`` (called once per control step with the newest
-normalised observation) and ``chunk(batch) -> (B, L, A)`` (normalised actions starting at the current
-step). They call the base's own public methods so the base runs exactly as LeRobot runs it.
+Every adapter offers ``reset()``, ``observe(batch) -> prepared`` (called once per control step with the
+newest normalised observation; returns the batch in the form the base reads) and
+``chunk(prepared) -> (B, L, A)`` (normalised actions starting at the current step). They call the base's own
+public methods so the base runs exactly as LeRobot runs it.
 """
 
 from __future__ import annotations
@@ -32,11 +33,11 @@ class ChunkSource:
     def reset(self) -> None:
         self.base.reset()
 
-    def observe(self, batch: dict[str, Tensor]) -> None:
-        pass
+    def observe(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        return _without_action(batch)
 
-    def chunk(self, batch: dict[str, Tensor]) -> Tensor:
-        return self.base.predict_action_chunk(_without_action(batch))
+    def chunk(self, prepared: dict[str, Tensor]) -> Tensor:
+        return self.base.predict_action_chunk(prepared)
 
 
 class DiffusionChunkSource(ChunkSource):
@@ -54,11 +55,10 @@ class DiffusionChunkSource(ChunkSource):
             batch[OBS_IMAGES] = _stack_images(batch, self.base.config.image_features)
         return batch
 
-    def observe(self, batch: dict[str, Tensor]) -> None:
-        self.base._queues = populate_queues(self.base._queues, self._prepare(batch))
-
-    def chunk(self, batch: dict[str, Tensor]) -> Tensor:
-        return self.base.predict_action_chunk(self._prepare(batch))
+    def observe(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        prepared = self._prepare(batch)
+        self.base._queues = populate_queues(self.base._queues, prepared)
+        return prepared
 
 
 class ACTChunkSource(ChunkSource):

@@ -113,6 +113,7 @@ class DCDPPolicy(PreTrainedPolicy):
         self.register_buffer("action_low", low, persistent=False)
         self.register_buffer("action_high", high, persistent=False)
         self._frame_keys = list(state_dims) + image_keys
+        self._needed_keys = sorted(set(self._frame_keys) | set(base.config.input_features or {}))
         self.reset()
 
     # ------------------------------------------------------------------ set-up helpers
@@ -267,8 +268,7 @@ class DCDPPolicy(PreTrainedPolicy):
         self._h: Tensor | None = None
 
     def _check_batch(self, batch: dict[str, Tensor]) -> None:
-        needed = set(self._frame_keys) | set(self._base.config.input_features or {})
-        missing = sorted(k for k in needed if k not in batch)
+        missing = [k for k in self._needed_keys if k not in batch]
         if missing:
             raise ValueError(f"observation is missing {missing}; it has {sorted(batch)}")
 
@@ -293,12 +293,12 @@ class DCDPPolicy(PreTrainedPolicy):
         """One action (B, A) per environment for the current step (normalised; the post-processor maps it)."""
         self._check_batch(batch)
         mode, horizon = self.config.execution, self.config.n_action_steps
-        self.source.observe(batch)
+        prepared = self.source.observe(batch)
         if mode == "dcdp":
             self._push_frame(batch)
         replan = mode in ("closed_loop", "temporal_ensemble") or self._step == 0
         if replan:
-            chunk = self.source.chunk(batch)
+            chunk = self.source.chunk(prepared)
             if mode == "temporal_ensemble":
                 self._plan = temporal_ensemble_step(self._plan, chunk, self.config.te_weight)
             elif mode == "closed_loop":
@@ -322,9 +322,9 @@ class DCDPPolicy(PreTrainedPolicy):
         """A corrected chunk (B, H, A) for the current observation, decoded with the current feature F
         for every step (no future observations exist yet)."""
         self._check_batch(batch)
-        self.source.observe(batch)
+        prepared = self.source.observe(batch)
         self._push_frame(batch)
-        chunk = self.source.chunk(batch)[:, : self.config.n_action_steps]
+        chunk = self.source.chunk(prepared)[:, : self.config.n_action_steps]
         z = self.encode_chunk(chunk)
         feature, _ = self.extractor(self._bank)
         feats = feature.unsqueeze(1).expand(-1, self.config.n_action_steps, -1)
