@@ -11,17 +11,19 @@ CK=$(printf "checkpoints/%06d/pretrained_model" "$AT")
 RECIPE=(--policy.observation_features='["observation.environment_state"]' --policy.latent_dim=8)
 case ${1:-} in
   train)
+    declare -A PIDS
     for v in no_ta:use_temporal_attention no_dca:use_diff_cross_attention no_ssd:use_diff_loss; do
       name=${v%%:*}; flag=${v#*:}
       STEPS=3000 OMP_NUM_THREADS=1 nohup scripts/train_corrector.sh models/pusht-diffusion-state "runs/ablate_$name" \
         "${RECIPE[@]}" "--policy.$flag=false" > "runs_ablate_$name.log" 2>&1 &
+      PIDS[$name]=$!   # the run this script started (train_corrector.sh execs lerobot-train)
     done
     for name in no_ta no_dca no_ssd; do   # stop each run once its step-$AT checkpoint is complete
       until [ -f "runs/ablate_$name/$CK/model.safetensors" ] && [ -L "runs/ablate_$name/checkpoints/last" ] \
             && [ "$(readlink -f runs/ablate_$name/checkpoints/last)" = "$(readlink -f "runs/ablate_$name/$CK/..")" ]; do
         sleep 5
       done
-      pkill -f "output_dir=runs/ablate_$name" || true
+      kill "${PIDS[$name]}" 2>/dev/null || true   # only the process this script started
     done ;;
   eval)
     ck=$CK

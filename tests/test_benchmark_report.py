@@ -15,8 +15,9 @@ IDENT = {
 }
 
 
-def cell(method: str, cond: str, sr: float, score: float) -> dict:
+def cell(method: str, cond: str, sr: float, score: float, rewards: list[float] | None = None) -> dict:
     return {
+        "max_rewards": rewards if rewards is not None else [score, score],
         "model": "m",
         "method": method,
         "condition": cond,
@@ -34,8 +35,9 @@ def results() -> dict:
         "cells": {
             "m|open_loop|static": cell("open_loop", "static", 0.5, 0.9),
             "m|dcdp|static": cell("dcdp", "static", 1.0, 0.95),
-            "m|open_loop|constant_0.5": cell("open_loop", "constant_0.5", 0.0, 0.5),
-            "m|dcdp|constant_0.5": cell("dcdp", "constant_0.5", 0.5, 0.8),
+            "m|open_loop|constant_2.0": cell("open_loop", "constant_2.0", 0.0, 0.5, [0.4, 0.6]),
+            "m|dcdp|constant_2.0": cell("dcdp", "constant_2.0", 0.5, 0.8),
+            "m|object_anchored|constant_2.0": cell("object_anchored", "constant_2.0", 0.0, 0.75),
         },
         "latency": {
             "m|open_loop": {"model": "m", "method": "open_loop", "mean_ms": 4.0, "p95_ms": 5.0},
@@ -51,14 +53,21 @@ def results() -> dict:
 def test_tables_and_report(tmp_path) -> None:
     r = results()
     t1 = table1(r, "m")
-    assert "| Open loop (H=8) | 50 % / 0.900 | 0 % / 0.500 |" in t1
-    assert "| DCDP (H=8) | 100 % / 0.950 | 50 % / 0.800 |" in t1
+    # score +- standard error (success +- standard error); s.e. of [0.4, 0.6] = 0.1
+    assert "| Open loop (H=8) | 0.900 ± 0.000 (50 ± 35 %) | 0.500 ± 0.100 (0 ± 0 %) |" in t1
+    assert "| DCDP (H=8) | 0.950 ± 0.000 (100 ± 0 %) | 0.800 ± 0.000 (50 ± 35 %) |" in t1
+    assert "| Object-anchored chunk (H=8, training-free) | - | 0.750" in t1
     t2 = table2(r, "m")
     assert "DCDP / open loop = 1.050" in t2 and "closed loop / DCDP = 8.00" in t2
     write_report(r, tmp_path / "RESULTS.md", tmp_path / "benchmark.json")
     text = (tmp_path / "RESULTS.md").read_text()
-    assert "dcdp-benchmark --episodes 2" in text and "constant_0.5: DCDP - open loop = +50 points" in text
-    assert (tmp_path / "success_vs_perturbation.png").stat().st_size > 0
+    assert "dcdp-benchmark --episodes 2" in text
+    assert "constant_2.0: DCDP - open loop = +0.300 score (goal >= +0.20)" in text
+    assert "constant_2.0: DCDP - object_anchored = +0.050 score" in text
+    assert "static: DCDP - open loop = +50 success points" in text
+    # the protocol line is written from the cells, not hard-coded
+    assert "2 episodes per cell from seed 100000" in text and "300 steps max" in text
+    assert (tmp_path / "score_vs_drift.png").stat().st_size > 0
 
 
 def test_cells_are_reused_only_for_the_same_models_and_protocol() -> None:

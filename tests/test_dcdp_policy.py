@@ -89,6 +89,12 @@ def test_save_load_round_trip_is_exact(diffusion_base, demo_root, tmp_path) -> N
     assert set(saved) == set(policy.state_dict())
     base_keys = set(policy.base.state_dict())
     assert not set(saved) & base_keys
+    # no base weights hide under other names either (values compared, not just names)
+    base_tensors = [  # trained/random weights; constant tensors (zero biases, ones) say nothing
+        t for t in policy.base.state_dict().values() if t.numel() > 16 and t.float().std() > 0
+    ]
+    for name, t in saved.items():
+        assert not any(t.shape == b.shape and torch.equal(t, b) for b in base_tensors), name
     assert sum(t.numel() for t in saved.values()) == sum(t.numel() for t in policy.state_dict().values())
     loaded = DCDPPolicy.from_pretrained(tmp_path)
     for k, v in policy.state_dict().items():
@@ -183,3 +189,33 @@ def test_batch_of_three_and_reset(act_base, demo_root) -> None:
         policy.select_action({"observation.state": obs[0]["observation.state"]})
     chunk = policy.predict_action_chunk(dict(obs[0]))
     assert chunk.shape == (3, policy.config.n_action_steps, 2)
+
+
+@pytest.mark.parametrize("kind", ["diffusion", "act"])
+def test_predict_action_chunk_is_a_query(kind, diffusion_base, act_base, demo_root) -> None:
+    """It plans from the given observation and leaves the policy's state alone: interleaving it with
+    select_action changes no action, and it equals the chunk a fresh policy starts from that observation."""
+    base_dir = diffusion_base if kind == "diffusion" else act_base
+    policy = make_dcdp_policy(base_dir, demo_root).eval()
+    obs = normalised_observations(policy, 2, 12)
+    torch.manual_seed(0)
+    policy.reset()
+    plain = [policy.select_action(dict(o)) for o in obs]
+    torch.manual_seed(0)
+    policy.reset()
+    mixed = []
+    for i, o in enumerate(obs):
+        state = torch.get_rng_state()
+        if i % 3 == 1:
+            policy.predict_action_chunk(dict(o))
+            torch.set_rng_state(state)  # the diffusion base draws noise: keep select_action's stream
+        mixed.append(policy.select_action(dict(o)))
+    for a, b in zip(plain, mixed, strict=True):
+        assert torch.equal(a, b)
+    policy.reset()
+    torch.manual_seed(1)
+    chunk = policy.predict_action_chunk(dict(obs[0]))
+    policy.reset()
+    torch.manual_seed(1)
+    first = policy.select_action(dict(obs[0]))
+    torch.testing.assert_close(chunk[:, 0], first)

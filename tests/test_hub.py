@@ -59,7 +59,12 @@ def test_push_uploads_the_corrector_only_and_it_loads_back(diffusion_base, demo_
     cfg = TrainPipelineConfig(
         dataset=DatasetConfig(repo_id="local/test", root=str(demo_root)), policy=policy.config
     )
+    with pytest.raises(ValueError, match="hub_base_policy_path"):
+        policy.push_model_to_hub(cfg)  # the base is a folder on this machine only
+    assert not calls
+    policy.config.hub_base_policy_path = "user/tiny-base"
     policy.push_model_to_hub(cfg)
+    assert policy.config.base_policy_path == str(diffusion_base)
     pre, post = make_dcdp_pre_post_processors(policy.config)
     pre.push_to_hub("user/dcdp-tiny")
     post.push_to_hub("user/dcdp-tiny")
@@ -81,7 +86,13 @@ def test_push_uploads_the_corrector_only_and_it_loads_back(diffusion_base, demo_
     card = (repo / "README.md").read_text()
     assert policy.config.base_weights_sha256 in card and "lerobot-eval --policy.path=user/dcdp-tiny" in card
 
-    loaded = DCDPPolicy.from_pretrained(repo)  # exactly the uploaded files; base from its recorded reference
+    from lerobot_dcdp.configuration_dcdp import DCDPConfig
+
+    stored = DCDPConfig.from_pretrained(repo)
+    assert stored.base_policy_path == "user/tiny-base"
+    # exactly the uploaded files; no Hub here, so the base's Hub id is overridden with its local copy
+    stored.base_policy_path = str(diffusion_base)
+    loaded = DCDPPolicy.from_pretrained(repo, config=stored)
     for k, v in policy.state_dict().items():
         assert torch.equal(v, loaded.state_dict()[k])
     assert loaded.config.base_weights_sha256 == policy.config.base_weights_sha256

@@ -1,4 +1,5 @@
-"""Image path of a base: image-only PushT demos -> diffusion + ResNet18 (no download) -> one eval episode."""
+"""Image path: image-only PushT demos -> diffusion base + ResNet18 (no download) -> a DCDP corrector on images
+(ResNet18 frame backbone) trained with lerobot-train -> stage 2 of every execution mode in lerobot-eval."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from lerobot_dcdp.pusht.demos import record_demonstrations
 
 
 @pytest.mark.slow
-def test_image_diffusion_base_trains_and_evaluates(tmp_path) -> None:
+def test_image_base_and_image_corrector_train_and_evaluate(tmp_path) -> None:
     data = tmp_path / "img"
     record_demonstrations(data, "local/img", episodes=1, seed=3, images=True, keypoints=False, progress=False)
     run(
@@ -51,3 +52,41 @@ def test_image_diffusion_base_trains_and_evaluates(tmp_path) -> None:
         cwd=tmp_path,
     )
     assert json.loads((out / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
+
+    # the corrector on images: ResNet18 per-frame backbone (random weights, nothing downloaded)
+    run(
+        [
+            str(BIN / "lerobot-train"),
+            "--policy.type=dcdp",
+            f"--policy.base_policy_path={ckpt}",
+            *tiny_train_flags("local/img", data),
+            f"--output_dir={tmp_path / 'dcdp'}",
+            "--policy.feature_dim=32",
+            "--policy.n_heads=4",
+        ],
+        cwd=tmp_path,
+    )
+    corrector = tmp_path / "dcdp" / "checkpoints" / "last" / "pretrained_model"
+    cfg = json.loads((corrector / "config.json").read_text())
+    assert cfg["backbone"] == "auto" and "observation.image" in cfg["input_features"]
+    for mode in ("dcdp", "open_loop", "closed_loop"):
+        out = tmp_path / f"eval_{mode}"
+        run(
+            [
+                str(BIN / "lerobot-eval"),
+                f"--policy.path={corrector}",
+                f"--policy.execution={mode}",
+                "--env.type=pusht_perturbed",
+                "--env.perturbation=constant",
+                "--env.magnitude=2",
+                "--env.obs_type=pixels_agent_pos",
+                "--env.episode_length=10",
+                "--eval.n_episodes=1",
+                "--eval.batch_size=1",
+                "--eval.use_async_envs=false",
+                "--policy.device=cpu",
+                f"--output_dir={out}",
+            ],
+            cwd=tmp_path,
+        )
+        assert json.loads((out / "eval_info.json").read_text())["overall"]["n_episodes"] == 1

@@ -27,7 +27,7 @@ def test_dataset_loads_and_every_episode_succeeds(demo_root) -> None:
     for e in range(2):
         idx = np.flatnonzero(ep == e)
         assert succ[idx].any(), "every kept episode reaches success"
-        assert succ[idx[-1]] or succ[idx[-4]], "the episode ends at (or holds after) success"
+        assert succ[idx[-1]], "every episode's last frame is in the success state"
     item = ds[0]
     assert item["observation.environment_state"].shape == (16,) and item["action"].shape == (2,)
     assert item["task"]
@@ -57,12 +57,45 @@ def test_same_seed_same_data() -> None:
     assert a.action.shape != c.action.shape or not np.array_equal(a.action, c.action)
 
 
-def test_refuses_eval_seeds_and_existing_output(tmp_path) -> None:
+@pytest.mark.parametrize("seed", [777, 778, 779, 780])
+def test_hold_frames_keep_the_success_state(seed: int) -> None:
+    ep = run_episode(seed)
+    assert ep.success and ep.success_flags[-1]
+
+
+def test_refuses_eval_seeds_and_foreign_folders_even_with_force(tmp_path) -> None:
     with pytest.raises(ValueError, match="seed"):
         record_demonstrations(tmp_path / "x", episodes=5, seed=99_999, progress=False)
     (tmp_path / "y").mkdir()
     (tmp_path / "y" / "file").write_text("keep")
-    with pytest.raises(ValueError, match="already exists"):
-        record_demonstrations(tmp_path / "y", episodes=1, progress=False)
+    for force in (False, True):
+        with pytest.raises(ValueError, match="not an output of dcdp-pusht-demos"):
+            record_demonstrations(tmp_path / "y", episodes=1, progress=False, force=force)
     assert (tmp_path / "y" / "file").read_text() == "keep"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["y"]
+
+
+def test_force_replaces_an_earlier_output_and_sweeps_stale_tmp(tmp_path) -> None:
+    root = tmp_path / "demos"
+    record_demonstrations(root, episodes=1, seed=3, progress=False)
+    with pytest.raises(ValueError, match="already exists"):
+        record_demonstrations(root, episodes=1, seed=3, progress=False)
+    (tmp_path / ".demos.tmp-killed").mkdir()  # what a killed run leaves
+    record_demonstrations(root, episodes=1, seed=4, progress=False, force=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demos"]
+    assert LeRobotDataset("local/test", root=root).meta.total_episodes == 1
+
+
+def test_too_few_successes_is_one_clear_error(tmp_path, monkeypatch) -> None:
+    from lerobot_dcdp.pusht import demos
+
+    monkeypatch.setattr(
+        demos,
+        "run_episode",
+        lambda s, *a, **k: demos.Episode(
+            s, False, *(np.zeros((1, 2)),) * 3, np.zeros(1), np.zeros(1, bool), None
+        ),
+    )
+    with pytest.raises(ValueError, match="only 0 of"):
+        record_demonstrations(tmp_path / "z", episodes=1, progress=False)
+    assert not (tmp_path / "z").exists()

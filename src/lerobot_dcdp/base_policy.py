@@ -12,23 +12,45 @@ _HUB_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*/[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
 def resolve_base_reference(ref: str, relative_to: str | Path | None = None) -> str:
-    """A local directory (as given, or relative to the corrector's own directory) or a Hub repo id.
+    """A local directory or a Hub repo id for a base reference.
+
+    A relative ``ref`` is looked up first beside the corrector (``relative_to``: a saved corrector stores its
+    local base relative to its own folder), then in the working directory; ``ref`` is taken for a Hub id only
+    when no local candidate exists.
 
     Raises:
-        ValueError: ``ref`` is neither an existing directory nor shaped like ``user/name``.
+        ValueError: ``ref`` is neither an existing directory nor shaped like ``user/name``; the message names
+            every place tried.
     """
     path = Path(ref).expanduser()
-    if path.is_dir():
-        return str(path)
-    if relative_to is not None and not path.is_absolute():
-        cand = Path(relative_to) / path
+    tried = []
+    candidates = [path] if path.is_absolute() else []
+    if not path.is_absolute():
+        if relative_to is not None and Path(relative_to).is_dir():
+            candidates.append(Path(relative_to) / path)
+        candidates.append(path)
+    for cand in candidates:
         if cand.is_dir():
             return str(cand)
+        tried.append(str(cand.resolve()))
     if _HUB_ID.match(ref) and not path.exists():
         return ref
     raise ValueError(
-        f"base_policy_path={ref!r} is neither a local pretrained_model directory nor a Hub repo id"
+        f"base_policy_path={ref!r} is neither a local pretrained_model directory (tried {tried}) nor a Hub "
+        "repo id (user/name)"
     )
+
+
+def portable_base_reference(ref: str, relative_to: str | Path | None, save_directory: str | Path) -> str:
+    """What a corrector saved in ``save_directory`` records as its base: a local base's path relative to
+    that directory (so the pair can be moved together and loaded from any working directory), a Hub id as is.
+    """
+    import os
+
+    resolved = resolve_base_reference(ref, relative_to)
+    if not Path(resolved).is_dir():
+        return ref
+    return os.path.relpath(Path(resolved).resolve(), Path(save_directory).resolve())
 
 
 def load_base_policy(ref: str, device: str | None, relative_to: str | Path | None = None) -> PreTrainedPolicy:
@@ -49,18 +71,44 @@ def load_base_policy(ref: str, device: str | None, relative_to: str | Path | Non
     return base
 
 
-def load_base_action_stats(ref: str, relative_to: str | Path | None = None) -> dict | None:
-    """The base's own action statistics, from its saved post-processor (None when it has none)."""
+def load_base_stats(ref: str, relative_to: str | Path | None = None) -> dict[str, tuple[str, dict]]:
+    """How the base's saved normalisers treat each feature: ``{key: (mode, stats)}``.
+
+    ``mode`` is the base normaliser's mode for the feature's type (``MIN_MAX``, ``MEAN_STD``, ...), or
+    ``IDENTITY`` for a feature it leaves raw; ``stats`` are float32 tensors. Only a missing processor file is
+    tolerated (with a warning); a file that exists but cannot be read raises.
+    """
+    import logging
+
+    import torch
     from lerobot.processor import PolicyProcessorPipeline
+
+    path = Path(resolve_base_reference(ref, relative_to))
+    out: dict[str, tuple[str, dict]] = {}
+    for name in ("policy_preprocessor.json", "policy_postprocessor.json"):
+        if path.is_dir() and not (path / name).is_file():
+            logging.warning("dcdp: base %s has no %s; its statistics are not used", path, name)
+            continue
+        pipe = PolicyProcessorPipeline.from_pretrained(str(path), name)
+        for step in pipe.steps:
+            stats, feats = getattr(step, "stats", None), getattr(step, "features", None)
+            if not stats or feats is None:
+                continue
+            for key, ft in feats.items():
+                if key in out or key not in stats:
+                    continue
+                mode = getattr(step, "norm_map", {}).get(ft.type, "IDENTITY")
+                mode = getattr(mode, "value", mode)
+                tensors = {
+                    k: torch.as_tensor(v, dtype=torch.float32).reshape(-1) for k, v in stats[key].items()
+                }
+                out[key] = (str(mode), tensors)
+    return out
+
+
+def load_base_action_stats(ref: str, relative_to: str | Path | None = None) -> dict | None:
+    """The base's own action statistics, from its saved processors (None when it saved none)."""
     from lerobot.utils.constants import ACTION
 
-    path = resolve_base_reference(ref, relative_to)
-    try:
-        post = PolicyProcessorPipeline.from_pretrained(path, "policy_postprocessor.json")
-    except Exception:  # noqa: BLE001 - a base saved without processors: fall back to the unit range
-        return None
-    for step in post.steps:
-        stats = getattr(step, "stats", None)
-        if stats and ACTION in stats:
-            return stats[ACTION]
-    return None
+    entry = load_base_stats(ref, relative_to).get(ACTION)
+    return entry[1] if entry else None

@@ -8,6 +8,8 @@ public methods so the base runs exactly as LeRobot runs it.
 
 from __future__ import annotations
 
+import copy
+
 import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
@@ -32,6 +34,15 @@ class ChunkSource:
 
     def reset(self) -> None:
         self.base.reset()
+
+    def snapshot(self) -> dict | None:
+        """The base's observation history (LeRobot bases keep it in ``_queues``), to restore after a query."""
+        queues = getattr(self.base, "_queues", None)
+        return None if queues is None else {k: copy.copy(v) for k, v in queues.items()}
+
+    def restore(self, snapshot: dict | None) -> None:
+        if snapshot is not None:
+            self.base._queues = snapshot
 
     def observe(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         return _without_action(batch)

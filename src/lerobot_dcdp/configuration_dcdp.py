@@ -8,7 +8,8 @@ from lerobot.configs import NormalizationMode, PreTrainedConfig
 from lerobot.configs.types import FeatureType
 from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
 
-EXECUTION_MODES = ("dcdp", "open_loop", "closed_loop", "temporal_ensemble")
+EXECUTION_MODES = ("dcdp", "open_loop", "closed_loop", "temporal_ensemble", "object_anchored")
+CORRECTIONS = ("reconstruct", "residual")
 BACKBONES = ("auto", "mlp", "resnet18")
 
 
@@ -26,15 +27,37 @@ class DCDPConfig(PreTrainedConfig):
         base_policy_type: Type of the base (``diffusion``, ``act``, ...); recorded at stage 1.
         base_weights_sha256: Content hash of the base weights the corrector was trained against; recorded at
             stage 1 and verified on every load (a different base is refused).
+        hub_base_policy_path: The base's Hub repo id, recorded instead of a local ``base_policy_path``
+            when the corrector is pushed to the Hub (a pushed corrector cannot point at a folder on this
+            machine; a push with a local base and no Hub id is refused).
         n_history: History length M of the observation bank (paper: M = 5). Must be >= 2.
         n_action_steps: Executed steps H per base chunk (paper: 8). Must not exceed the base's chunk.
         execution: ``dcdp`` (corrected chunks), ``open_loop`` (the base as LeRobot runs it, replanning every
             H steps), ``closed_loop`` (replan every step) or ``temporal_ensemble`` (replan every step, blend
             overlapping predictions).
+            ``object_anchored`` is a training-free reference: the not-yet-executed part of the chunk is
+            carried along with the rigid motion of the object seen in ``anchor_feature`` since the chunk
+            was planned.
         te_weight: Weight of the newest prediction in ``temporal_ensemble`` (authors: 0.5).
+        correction: How the corrector produces action s of a chunk. ``reconstruct`` is the paper's recipe:
+            the GRU decoder re-decodes the action from z and F_{t+s} (trained to reconstruct demonstration
+            chunks). ``residual`` (ours, see docs/METHOD.md): ``a_s = plan_s + delta(z, plan_s, F_{t+s},
+            change since plan time, e_s)`` with delta's last layer zero-initialised (a fresh corrector is
+            exactly open loop), trained on recorded corrections of stale chunks (``dcdp-record-corrections``).
+        anchor_feature: Observation key holding an object's keypoints as xy pairs, in the same frame as the
+            first two action dims (PushT: ``observation.environment_state``). Needed by ``object_anchored``.
+        plan_feature: Dataset key of the chunk the base planned at the chunk start, (L, A) raw actions, in
+            recorded corrections (``residual`` training only; never read at inference).
+        plan_step_feature: Dataset key of the step index s of a frame within its chunk (``residual``).
+        change_scale: Factor on the change of the (normalised) corrector inputs since plan time before the
+            residual head sees it: that change is small next to the inputs' range.
+        anchor_input: ``residual`` only: also give the head the ``object_anchored`` proposal for step s (the
+            plan carried along with the anchor keypoints' rigid motion), as a change from ``plan_s``. The head
+            still starts at zero (open loop) and learns how much of the proposal to take, and what else.
         backbone: Per-frame backbone: ``mlp`` for state/keypoint vectors, ``resnet18`` for images, ``auto``
             picks ``resnet18`` when the inputs hold images, else ``mlp``.
-        observation_features: Observation keys the corrector reads; empty = every input of the base.
+        observation_features: Observation keys the corrector reads; empty = every observation input of the
+            dataset or env (the recorded plan keys excepted).
         feature_dim: Width of the per-frame tokens and of the dynamic feature F.
         state_hidden_dim: Hidden width of the MLP backbone.
         n_heads: Attention heads of the temporal self-attention and the diff cross-attention.
@@ -60,11 +83,18 @@ class DCDPConfig(PreTrainedConfig):
     base_policy_path: str | None = None
     base_policy_type: str | None = None
     base_weights_sha256: str | None = None
+    hub_base_policy_path: str | None = None
 
     n_history: int = 5
     n_action_steps: int = 8
     execution: str = "dcdp"
     te_weight: float = 0.5
+    correction: str = "reconstruct"
+    anchor_feature: str | None = None
+    plan_feature: str = "observation.dcdp_plan"
+    plan_step_feature: str = "observation.dcdp_plan_step"
+    change_scale: float = 10.0
+    anchor_input: bool = False
 
     backbone: str = "auto"
     observation_features: list[str] = field(default_factory=list)
@@ -115,6 +145,17 @@ class DCDPConfig(PreTrainedConfig):
             raise ValueError(f"n_action_steps must be >= 1, got {self.n_action_steps}")
         if self.execution not in EXECUTION_MODES:
             raise ValueError(f"execution must be one of {EXECUTION_MODES}, got {self.execution!r}")
+        if self.correction not in CORRECTIONS:
+            raise ValueError(f"correction must be one of {CORRECTIONS}, got {self.correction!r}")
+        if self.execution == "object_anchored" and not self.anchor_feature:
+            raise ValueError(
+                "execution='object_anchored' needs anchor_feature: the observation key holding the object's "
+                "xy keypoints (PushT: --policy.anchor_feature=observation.environment_state)"
+            )
+        if self.anchor_input and not (self.anchor_feature and self.correction == "residual"):
+            raise ValueError("anchor_input needs correction='residual' and an anchor_feature")
+        if not self.change_scale > 0:
+            raise ValueError(f"change_scale must be > 0, got {self.change_scale}")
         if not 0.0 < self.te_weight <= 1.0:
             raise ValueError(f"te_weight must be in (0, 1], got {self.te_weight}")
         if self.backbone not in BACKBONES:
@@ -141,12 +182,19 @@ class DCDPConfig(PreTrainedConfig):
     # ------------------------------------------------------------------ what a training sample holds
     @property
     def observation_delta_indices(self) -> list[int]:
-        """Observations t-M+1 .. t+H-1: decoder step s sees the window ending at t+s (train as you infer)."""
+        """``reconstruct``: observations t-M+1 .. t+H-1 (decoder step s sees the window ending at t+s:
+        train as you infer). ``residual``: a sample is one control step t; observations t-K+1 .. t with
+        K = max(M, H) hold the history window and the frame at plan time t-s (s < H)."""
+        if self.correction == "residual":
+            return list(range(1 - max(self.n_history, self.n_action_steps), 1))
         return list(range(1 - self.n_history, self.n_action_steps))
 
     @property
     def action_delta_indices(self) -> list[int]:
-        """Actions t .. t+H-1: the executed part of a chunk."""
+        """``reconstruct``: actions t .. t+H-1 (the executed part of a chunk); ``residual``: the action
+        at t."""
+        if self.correction == "residual":
+            return [0]
         return list(range(self.n_action_steps))
 
     @property
@@ -170,7 +218,12 @@ class DCDPConfig(PreTrainedConfig):
         """Observation keys the corrector reads (``observation_features`` or every observation input)."""
         if self.observation_features:
             return list(self.observation_features)
-        return [k for k, ft in (self.input_features or {}).items() if ft.type is not FeatureType.ACTION]
+        skip = (self.plan_feature, self.plan_step_feature)
+        return [
+            k
+            for k, ft in (self.input_features or {}).items()
+            if ft.type is not FeatureType.ACTION and k not in skip
+        ]
 
     @property
     def resolved_backbone(self) -> str:
@@ -198,6 +251,19 @@ class DCDPConfig(PreTrainedConfig):
             feats[k].type in (FeatureType.STATE, FeatureType.ENV) for k in self.corrector_features
         ):
             raise ValueError("backbone='mlp' needs a state or environment_state observation feature")
+        if self.anchor_feature:
+            if self.anchor_feature not in feats:
+                raise ValueError(
+                    f"anchor_feature {self.anchor_feature!r} is not among the input features {sorted(feats)}"
+                )
+            shape = tuple(feats[self.anchor_feature].shape)
+            if len(shape) != 1 or shape[0] < 4 or shape[0] % 2:
+                raise ValueError(
+                    f"anchor_feature {self.anchor_feature!r} must hold >= 2 xy keypoints as a flat vector "
+                    f"(x0, y0, x1, y1, ...), got shape {shape}"
+                )
+            if self.action_feature.shape[0] < 2:
+                raise ValueError("anchor_feature needs actions whose first two dims are xy")
         if self.resolved_backbone == "resnet18" and not any(
             feats[k].type is FeatureType.VISUAL for k in self.corrector_features
         ):

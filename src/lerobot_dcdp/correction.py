@@ -49,3 +49,67 @@ def state_dict_sha256(state_dict: dict[str, Tensor]) -> str:
 def sliding_windows(frames: Tensor, window: int) -> Tensor:
     """(B, T, ...) -> (B, T - window + 1, window, ...): the window ending at each step."""
     return frames.unfold(1, window, 1).movedim(-1, 2)
+
+
+def normalize(x: Tensor, stats: dict[str, Tensor], mode: str) -> Tensor:
+    """LeRobot's normalisation of one feature: ``MIN_MAX`` to [-1, 1], ``MEAN_STD``, or ``IDENTITY``."""
+    if mode == "MIN_MAX":
+        return 2.0 * (x - stats["min"]) / (stats["max"] - stats["min"]).clamp_min(1e-8) - 1.0
+    if mode == "MEAN_STD":
+        return (x - stats["mean"]) / stats["std"].clamp_min(1e-8)
+    if mode == "IDENTITY":
+        return x
+    raise ValueError(f"unknown normalisation mode {mode!r} (MIN_MAX, MEAN_STD or IDENTITY)")
+
+
+def unnormalize(x: Tensor, stats: dict[str, Tensor], mode: str) -> Tensor:
+    """Inverse of :func:`normalize`."""
+    if mode == "MIN_MAX":
+        return (x + 1.0) * 0.5 * (stats["max"] - stats["min"]).clamp_min(1e-8) + stats["min"]
+    if mode == "MEAN_STD":
+        return x * stats["std"].clamp_min(1e-8) + stats["mean"]
+    if mode == "IDENTITY":
+        return x
+    raise ValueError(f"unknown normalisation mode {mode!r} (MIN_MAX, MEAN_STD or IDENTITY)")
+
+
+def rigid_fit_2d(before: Tensor, after: Tensor) -> tuple[Tensor, Tensor]:
+    """Least-squares rigid motion (rotation + translation, no reflection) of 2-D point sets (Kabsch).
+
+    Args:
+        before: (B, N, 2) keypoints when the chunk was planned.
+        after: (B, N, 2) the same keypoints now.
+
+    Returns:
+        ``R`` (B, 2, 2) and ``t`` (B, 2) minimising ``sum_i |R p_i + t - q_i|^2``. In 2-D the optimal angle
+        has the closed form ``atan2(sum p_i x q_i, sum p_i . q_i)`` over the centred points, so no SVD.
+    """
+    if before.shape != after.shape or before.shape[-1] != 2 or before.dim() != 3:
+        raise ValueError(
+            f"rigid_fit_2d needs two (B, N, 2) tensors, got {tuple(before.shape)} and {tuple(after.shape)}"
+        )
+    pc, qc = before.mean(1, keepdim=True), after.mean(1, keepdim=True)
+    p, q = before - pc, after - qc
+    sin = (p[..., 0] * q[..., 1] - p[..., 1] * q[..., 0]).sum(1)
+    cos = (p * q).sum((1, 2))
+    angle = torch.atan2(sin, cos)
+    c, s = torch.cos(angle), torch.sin(angle)
+    rot = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)
+    t = qc[:, 0] - (rot @ pc[:, 0].unsqueeze(-1)).squeeze(-1)
+    return rot, t
+
+
+def anchor_actions(actions: Tensor, rot: Tensor, t: Tensor) -> Tensor:
+    """Carry planned actions along with an object's rigid motion: ``a_xy' = R a_xy + t``.
+
+    Args:
+        actions: (B, A) or (B, L, A) raw actions whose first two dims are xy in the keypoints' frame
+            (other dims are left as planned).
+        rot: (B, 2, 2); t: (B, 2) from :func:`rigid_fit_2d`.
+    """
+    xy = actions[..., :2]
+    if actions.dim() == 2:
+        moved = (rot @ xy.unsqueeze(-1)).squeeze(-1) + t
+    else:
+        moved = xy @ rot.transpose(1, 2) + t.unsqueeze(1)
+    return torch.cat([moved, actions[..., 2:]], dim=-1)

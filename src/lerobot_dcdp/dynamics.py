@@ -93,12 +93,18 @@ class FrameEncoder(nn.Module):
         self.image = ImageBackbone(out_dim, image_weights, freeze_images) if image_keys else None
         self.cam_embed = nn.Parameter(torch.zeros(len(image_keys), out_dim)) if image_keys else None
 
+    def vector(self, obs: dict[str, Tensor]) -> Tensor | None:
+        """The standardised, concatenated vector inputs of a frame (None when the frame has none)."""
+        if self.state is None:
+            return None
+        x = torch.cat([obs[k] for k in self.state_keys], dim=-1)
+        return (x - self.state_shift) / self.state_scale
+
     def forward(self, obs: dict[str, Tensor]) -> Tensor:
         """Frames with any leading shape ``(*lead, feat)`` / ``(*lead, C, H, W)`` -> ``(*lead, d)``."""
         out = None
         if self.state is not None:
-            x = torch.cat([obs[k] for k in self.state_keys], dim=-1)
-            out = self.state((x - self.state_shift) / self.state_scale)
+            out = self.state(self.vector(obs))
         for i, k in enumerate(self.image_keys):
             img = obs[k]
             lead = img.shape[:-3]

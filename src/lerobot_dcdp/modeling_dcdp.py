@@ -15,6 +15,7 @@ loop, temporal ensemble) are other execution modes of this same loop.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import torch
 from lerobot.configs.types import FeatureType, NormalizationMode
@@ -23,17 +24,27 @@ from lerobot.utils.constants import ACTION
 from torch import Tensor
 
 from lerobot_dcdp.action_vae import ActionDecoder, ChunkEncoder, kl_to_standard_normal, reparameterize
-from lerobot_dcdp.base_policy import load_base_action_stats, load_base_policy
+from lerobot_dcdp.base_policy import (
+    load_base_policy,
+    load_base_stats,
+    portable_base_reference,
+    resolve_base_reference,
+)
 from lerobot_dcdp.chunk_sources import ChunkSource, make_chunk_source
 from lerobot_dcdp.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.correction import (
+    anchor_actions,
     from_unit_range,
+    normalize,
+    rigid_fit_2d,
     sliding_windows,
     state_dict_sha256,
     temporal_ensemble_step,
     to_unit_range,
+    unnormalize,
 )
 from lerobot_dcdp.dynamics import DynamicFeatureExtractor, FrameEncoder, diff_loss
+from lerobot_dcdp.residual import ResidualHead, change_input
 
 
 class BaseMismatchError(ValueError):
@@ -67,6 +78,12 @@ class DCDPPolicy(PreTrainedPolicy):
         config.base_policy_type = base.config.type
         config.normalization_mapping = dict(base.config.normalization_mapping)
         self.source: ChunkSource = make_chunk_source(base)
+        if config.input_features:  # the recorded plan is a training target's context, never an input
+            config.input_features = {
+                k: v
+                for k, v in config.input_features.items()
+                if k not in (config.plan_feature, config.plan_step_feature)
+            }
         self._check_against_base(base)
         config.validate_features()
 
@@ -99,21 +116,35 @@ class DCDPPolicy(PreTrainedPolicy):
         self.encoder = ChunkEncoder(
             config.n_action_steps, action_dim, config.encoder_hidden_dim, config.latent_dim
         )
-        self.decoder = ActionDecoder(
-            config.n_action_steps,
-            action_dim,
-            config.latent_dim,
-            config.feature_dim,
-            config.decoder_hidden_dim,
-            config.step_embed_dim,
-        )
+        if config.correction == "residual":
+            change_dim = 2 * (sum(state_dims.values()) if state_dims else config.feature_dim)
+            change_dim += action_dim if config.anchor_input else 0
+            self.residual = ResidualHead(
+                config.n_action_steps,
+                action_dim,
+                config.latent_dim,
+                config.feature_dim,
+                change_dim,
+                config.decoder_hidden_dim,
+                config.step_embed_dim,
+            )
+        else:
+            self.decoder = ActionDecoder(
+                config.n_action_steps,
+                action_dim,
+                config.latent_dim,
+                config.feature_dim,
+                config.decoder_hidden_dim,
+                config.step_embed_dim,
+            )
         if dataset_stats is not None:
             self._set_raw_input_scaling(state_dims, dataset_stats)
+        self._base_stats = load_base_stats(config.base_policy_path, config.pretrained_path)
         low, high = self._action_range(action_dim)
         self.register_buffer("action_low", low, persistent=False)
         self.register_buffer("action_high", high, persistent=False)
         self._frame_keys = list(state_dims) + image_keys
-        self._needed_keys = sorted(set(self._frame_keys) | set(base.config.input_features or {}))
+        self._base_keys = set(base.config.input_features or {})
         self.reset()
 
     # ------------------------------------------------------------------ set-up helpers
@@ -192,18 +223,48 @@ class DCDPPolicy(PreTrainedPolicy):
     def _action_range(self, action_dim: int) -> tuple[Tensor, Tensor]:
         """Range of the base-normalised actions, mapped to [-1, 1] before encoding (paper: min-max)."""
         ones = torch.ones(action_dim)
-        stats = load_base_action_stats(self.config.base_policy_path, self.config.pretrained_path)
-        mode = self.config.normalization_mapping.get("ACTION", NormalizationMode.MIN_MAX)
-        mode = NormalizationMode(mode) if not isinstance(mode, NormalizationMode) else mode
-        if stats is None or mode is NormalizationMode.MIN_MAX or "min" not in stats:
+        mode, stats = self._base_stats.get(ACTION, ("IDENTITY", {}))
+        if mode == "MIN_MAX" or "min" not in stats:
             return -ones, ones
-        lo = torch.as_tensor(stats["min"], dtype=torch.float32).reshape(-1)
-        hi = torch.as_tensor(stats["max"], dtype=torch.float32).reshape(-1)
-        if mode is NormalizationMode.MEAN_STD:
-            mean = torch.as_tensor(stats["mean"], dtype=torch.float32).reshape(-1)
-            std = torch.as_tensor(stats["std"], dtype=torch.float32).reshape(-1).clamp_min(1e-8)
-            lo, hi = (lo - mean) / std, (hi - mean) / std
+        lo, hi = stats["min"], stats["max"]
+        if mode == "MEAN_STD":
+            std = stats["std"].clamp_min(1e-8)
+            lo, hi = (lo - stats["mean"]) / std, (hi - stats["mean"]) / std
         return lo, hi
+
+    def _norm(self, key: str, x: Tensor, inverse: bool = False) -> Tensor:
+        """(Un)normalise feature ``key`` exactly as the base's saved normaliser does."""
+        mode, stats = self._base_stats.get(key, ("IDENTITY", {}))
+        stats = {k: v.to(x.device, x.dtype) for k, v in stats.items()}
+        return unnormalize(x, stats, mode) if inverse else normalize(x, stats, mode)
+
+    def _save_pretrained(self, save_directory, *args, **kwargs) -> None:
+        """Save as LeRobot does, recording a local base relative to ``save_directory``."""
+        cfg = self.config
+        original = cfg.base_policy_path
+        cfg.base_policy_path = portable_base_reference(original, cfg.pretrained_path, save_directory)
+        try:
+            super()._save_pretrained(save_directory, *args, **kwargs)
+        finally:
+            cfg.base_policy_path = original
+
+    def push_model_to_hub(self, cfg, *args, **kwargs):
+        """Push the corrector only; its config names the base by Hub id (``hub_base_policy_path`` when the
+        base is a local folder), since a folder on this machine means nothing to whoever downloads it."""
+        config = self.config
+        local = Path(resolve_base_reference(config.base_policy_path, config.pretrained_path)).is_dir()
+        if local and not config.hub_base_policy_path:
+            raise ValueError(
+                "cannot push a corrector whose base is the local folder "
+                f"{config.base_policy_path!r}: push the base to the Hub first and name it with "
+                "--policy.hub_base_policy_path=<user/base> (its weights hash is checked on every load)"
+            )
+        original = config.base_policy_path
+        config.base_policy_path = config.hub_base_policy_path if local else original
+        try:
+            return super().push_model_to_hub(cfg, *args, **kwargs)
+        finally:
+            config.base_policy_path = original
 
     def to(self, *args, **kwargs):
         super().to(*args, **kwargs)
@@ -230,7 +291,13 @@ class DCDPPolicy(PreTrainedPolicy):
         return f.reshape(b, s, -1), d_last.reshape(b, s, -1)
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """Stage-1 loss on a sample of observations t-M+1..t+H-1 and actions t..t+H-1."""
+        """Stage-1 loss (``reconstruct``: paper; ``residual``: recorded corrections, see the config)."""
+        if self.config.correction == "residual":
+            return self._residual_loss(batch)
+        return self._reconstruction_loss(batch)
+
+    def _reconstruction_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """Paper's stage 1 on a sample of observations t-M+1..t+H-1 and actions t..t+H-1."""
         cfg = self.config
         frames = self.frame_encoder({k: batch[k] for k in self._frame_keys})  # (B, M+H-1, d)
         feats, d_last = self._features(frames)  # (B, H, d)
@@ -256,28 +323,147 @@ class DCDPPolicy(PreTrainedPolicy):
             "alpha": float(self.extractor.alpha.detach()),
         }
 
+    def _recorded_plan(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
+        """The recorded chunk (B, H, A), base-normalised, and each sample's step s (B,) in it."""
+        cfg = self.config
+        missing = [k for k in (cfg.plan_feature, cfg.plan_step_feature) if k not in batch]
+        if missing:
+            raise ValueError(
+                f"correction='residual' trains on recorded corrections, but the batch has no {missing}: "
+                "record them with dcdp-record-corrections (or use --policy.correction=reconstruct, the "
+                "paper's recipe, on plain demonstrations)"
+            )
+        plan, step = batch[cfg.plan_feature], batch[cfg.plan_step_feature]
+        # the observation delta indices stack a time axis: the current frame is the last one (a (1,)-shaped
+        # feature arrives as (B, K), a (L, A) one as (B, K, L, A))
+        plan = plan[:, -1] if plan.dim() == 4 else plan
+        step = step.reshape(step.shape[0], -1)[:, -1]
+        if plan.dim() != 3 or plan.shape[1] < cfg.n_action_steps:
+            raise ValueError(
+                f"{cfg.plan_feature} must hold (L >= n_action_steps={cfg.n_action_steps}, A) actions per "
+                f"frame, got shape {tuple(plan.shape[1:])}"
+            )
+        step = step.round().long()
+        if (step < 0).any() or (step >= cfg.n_action_steps).any():
+            raise ValueError(f"{cfg.plan_step_feature} must lie in [0, {cfg.n_action_steps - 1}]")
+        return self._norm(ACTION, plan[:, : cfg.n_action_steps]), step
+
+    def _residual_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """One control step t per sample: ``MSE(plan_s + delta, a_t) + lambda_KL KL + lambda_diff L_diff``.
+
+        The frames are t-K+1 .. t (K = max(M, H)): the last M feed F_t, the one at t-s is the plan-time frame.
+        """
+        cfg = self.config
+        plan, step = self._recorded_plan(batch)
+        obs = {k: batch[k] for k in self._frame_keys}
+        frames = self.frame_encoder(obs)  # (B, K, d)
+        if frames.dim() != 3:
+            raise ValueError(
+                "correction='residual' needs the observation history of the config's delta indices"
+            )
+        feature, d_last = self.extractor(frames[:, -cfg.n_history :])
+        rep = self._change_repr(obs, frames)  # (B, K, r)
+        k = rep.shape[1]
+        idx = (k - 1 - step).clamp_min(0).view(-1, 1, 1).expand(-1, 1, rep.shape[-1])
+        at_plan = rep.gather(1, idx)[:, 0]
+        plan_unit = to_unit_range(plan, self.action_low, self.action_high)
+        mu, logvar = self.encoder(plan_unit)
+        z = reparameterize(mu, logvar) if self.training else mu
+        rows = torch.arange(len(step), device=step.device)
+        plan_s = plan_unit[rows, step]
+        change = change_input(at_plan, rep[:, -1], cfg.change_scale)
+        if cfg.anchor_input:
+            key = cfg.anchor_feature
+            kp = self._norm(key, batch[key], inverse=True)
+            kp = kp.reshape(*kp.shape[:2], -1, 2)
+            rot, t = rigid_fit_2d(kp[rows, k - 1 - step], kp[:, -1])
+            raw = self._norm(ACTION, plan[rows, step], inverse=True)
+            proposal = to_unit_range(
+                self._norm(ACTION, anchor_actions(raw, rot, t)), self.action_low, self.action_high
+            )
+            change = torch.cat([change, cfg.change_scale * (proposal - plan_s)], dim=-1)
+        delta = self.residual(z, plan_s, feature, change, step)
+        target = to_unit_range(batch[ACTION].reshape(plan_s.shape), self.action_low, self.action_high)
+        extra = {"anchor_gap": ((proposal - target) ** 2).mean().item()} if cfg.anchor_input else {}
+        valid = (
+            (~batch["action_is_pad"].reshape(-1)).to(delta.dtype).unsqueeze(-1)
+            if "action_is_pad" in batch
+            else torch.ones_like(delta[:, :1])
+        )
+        denom = (valid.sum() * delta.shape[-1]).clamp_min(1.0)
+        recon = (((plan_s + delta - target) ** 2) * valid).sum() / denom
+        kl = kl_to_standard_normal(mu, logvar)
+        l_diff = diff_loss(feature, d_last)
+        loss = recon + cfg.kl_weight * kl + (cfg.diff_weight * l_diff if cfg.use_diff_loss else 0.0)
+        return loss, {
+            "recon_loss": recon.item(),
+            "plan_gap": ((((plan_s - target) ** 2) * valid).sum() / denom).item(),
+            "kl_loss": kl.item(),
+            "diff_loss": l_diff.item(),
+            **extra,
+        }
+
+    def _change_repr(self, obs: dict[str, Tensor], tokens: Tensor) -> Tensor:
+        """What the residual head compares between plan time and now: the standardised vector inputs, or
+        the frame tokens when the corrector reads images only."""
+        vec = self.frame_encoder.vector(obs)
+        return tokens if vec is None else vec
+
     # ------------------------------------------------------------------ stage 2
     def reset(self) -> None:
         """Clear the history bank and the chunk state, and reset the base (call on env reset)."""
         self.source.reset()
         self._bank: Tensor | None = None  # (B, M, d) cached frame tokens
+        self._rep: Tensor | None = None  # newest change representation (residual)
         self._step = 0
         self._chunk: Tensor | None = None
         self._plan: Tensor | None = None
         self._z: Tensor | None = None
         self._h: Tensor | None = None
+        self._at_plan: Tensor | None = None  # residual: change representation at plan time
+        self._anchor_plan: Tensor | None = None  # raw anchor keypoints at plan time
+        self.last_step: int | None = None
 
     def _check_batch(self, batch: dict[str, Tensor]) -> None:
-        missing = [k for k in self._needed_keys if k not in batch]
+        needed = set(self._frame_keys) | self._base_keys
+        if self.config.execution == "object_anchored":
+            if not self.config.anchor_feature:
+                raise ValueError(
+                    "execution='object_anchored' needs anchor_feature (the object's xy keypoints)"
+                )
+            needed.add(self.config.anchor_feature)
+        missing = sorted(k for k in needed if k not in batch)
         if missing:
             raise ValueError(f"observation is missing {missing}; it has {sorted(batch)}")
 
     def _push_frame(self, batch: dict[str, Tensor]) -> None:
-        token = self.frame_encoder({k: batch[k] for k in self._frame_keys})  # (B, d): one new frame
+        obs = {k: batch[k] for k in self._frame_keys}
+        token = self.frame_encoder(obs)  # (B, d): one new frame
         if self._bank is None or self._bank.shape[0] != token.shape[0]:
             self._bank = token.unsqueeze(1).repeat(1, self.config.n_history, 1)
         else:
             self._bank = torch.cat([self._bank[:, 1:], token.unsqueeze(1)], dim=1)
+        if self.config.correction == "residual":
+            self._rep = self._change_repr(obs, token)
+
+    def _anchor_points(self, batch: dict[str, Tensor]) -> Tensor:
+        """Raw (un-normalised) anchor keypoints (B, N, 2) of the current observation."""
+        key = self.config.anchor_feature
+        x = self._norm(key, batch[key], inverse=True)
+        return x.reshape(x.shape[0], -1, 2)
+
+    def _anchored(self, plan_s: Tensor, batch: dict[str, Tensor]) -> Tensor:
+        """``object_anchored``: the planned action carried along with the object's rigid motion since the
+        chunk was planned, estimated from the anchor keypoints (least squares)."""
+        rot, t = rigid_fit_2d(self._anchor_plan, self._anchor_points(batch))
+        raw = self._norm(ACTION, plan_s, inverse=True)
+        return self._norm(ACTION, anchor_actions(raw, rot, t))
+
+    @property
+    def planned_chunk(self) -> Tensor | None:
+        """The chunk being executed (B, H, A), base-normalised, as the base planned it (open loop, DCDP and
+        object_anchored; ``last_step`` is the index of the action last returned)."""
+        return self._chunk
 
     def encode_chunk(self, chunk: Tensor) -> Tensor:
         """Normalise a base chunk (B, H, A) to [-1, 1] and encode it to z = mu."""
@@ -288,11 +474,24 @@ class DCDPPolicy(PreTrainedPolicy):
         a, self._h = self.decoder.step(self._z, feature, step, self._h)
         return from_unit_range(a, self.action_low, self.action_high)
 
+    def residual_step(self, feature: Tensor, step: int, batch: dict[str, Tensor]) -> Tensor:
+        """``plan_s + delta`` (base-normalised); delta == 0 returns the planned action bit for bit."""
+        plan_s = self._chunk[:, step]
+        s = torch.full((plan_s.shape[0],), step, dtype=torch.long, device=plan_s.device)
+        change = change_input(self._at_plan, self._rep, self.config.change_scale)
+        plan_unit = to_unit_range(plan_s, self.action_low, self.action_high)
+        if self.config.anchor_input:
+            proposal = to_unit_range(self._anchored(plan_s, batch), self.action_low, self.action_high)
+            change = torch.cat([change, self.config.change_scale * (proposal - plan_unit)], dim=-1)
+        delta = self.residual(self._z, plan_unit, feature, change, s)
+        return plan_s + delta * (0.5 * (self.action_high - self.action_low))
+
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor]) -> Tensor:
         """One action (B, A) per environment for the current step (normalised; the post-processor maps it)."""
         self._check_batch(batch)
-        mode, horizon = self.config.execution, self.config.n_action_steps
+        cfg = self.config
+        mode, horizon = cfg.execution, cfg.n_action_steps
         prepared = self.source.observe(batch)
         if mode == "dcdp":
             self._push_frame(batch)
@@ -300,35 +499,83 @@ class DCDPPolicy(PreTrainedPolicy):
         if replan:
             chunk = self.source.chunk(prepared)
             if mode == "temporal_ensemble":
-                self._plan = temporal_ensemble_step(self._plan, chunk, self.config.te_weight)
+                self._plan = temporal_ensemble_step(self._plan, chunk, cfg.te_weight)
             elif mode == "closed_loop":
                 self._plan = chunk
             else:
                 self._chunk = chunk[:, :horizon]
-                if mode == "dcdp":
+                if mode == "object_anchored" or (mode == "dcdp" and cfg.anchor_input):
+                    self._anchor_plan = self._anchor_points(batch)
+                elif mode == "dcdp":
                     self._z = self.encode_chunk(self._chunk)
-                    self._h = self.decoder.initial_state(self._z)
+                    if cfg.correction == "residual":
+                        self._at_plan = self._rep
+                    else:
+                        self._h = self.decoder.initial_state(self._z)
         if mode in ("closed_loop", "temporal_ensemble"):
+            self.last_step = 0
             return self._plan[:, 0]
         step = self._step
+        self.last_step = step
         self._step = (self._step + 1) % horizon
         if mode == "open_loop":
             return self._chunk[:, step]
+        if mode == "object_anchored":
+            return self._anchored(self._chunk[:, step], batch)
         feature, _ = self.extractor(self._bank)
+        if cfg.correction == "residual":
+            return self.residual_step(feature, step, batch)
         return self.decode_step(feature, step)
+
+    _STATE = (
+        "_bank",
+        "_rep",
+        "_step",
+        "_chunk",
+        "_plan",
+        "_z",
+        "_h",
+        "_at_plan",
+        "_anchor_plan",
+        "last_step",
+    )
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor]) -> Tensor:
-        """A corrected chunk (B, H, A) for the current observation, decoded with the current feature F
-        for every step (no future observations exist yet)."""
+        """The corrected chunk (B, H, A) the policy would start from ``batch`` as its next observation,
+        every step decoded with the current F (no later observation exists yet: for ``residual`` nothing has
+        changed since plan time, so this is the base's chunk plus the corrections a still world gets).
+
+        A query: the policy's state (history bank, current chunk and step, the base's observation queues)
+        is the same afterwards, so calling it between ``select_action`` calls changes none of their actions.
+        """
         self._check_batch(batch)
-        prepared = self.source.observe(batch)
-        self._push_frame(batch)
-        chunk = self.source.chunk(prepared)[:, : self.config.n_action_steps]
-        z = self.encode_chunk(chunk)
-        feature, _ = self.extractor(self._bank)
-        feats = feature.unsqueeze(1).expand(-1, self.config.n_action_steps, -1)
-        return from_unit_range(self.decoder(z, feats), self.action_low, self.action_high)
+        cfg = self.config
+        saved = {k: getattr(self, k) for k in self._STATE}
+        queues = self.source.snapshot()
+        try:
+            prepared = self.source.observe(batch)
+            self._push_frame(batch)
+            chunk = self.source.chunk(prepared)[:, : cfg.n_action_steps]
+            z = self.encode_chunk(chunk)
+            feature, _ = self.extractor(self._bank)
+            if cfg.correction == "residual":
+                unit = to_unit_range(chunk, self.action_low, self.action_high)
+                change = change_input(self._rep, self._rep, cfg.change_scale)
+                if cfg.anchor_input:  # a still object: the anchored proposal is the plan itself
+                    change = torch.cat([change, torch.zeros_like(unit[:, 0])], dim=-1)
+                out = []
+                for s in range(cfg.n_action_steps):
+                    steps = torch.full((chunk.shape[0],), s, dtype=torch.long, device=chunk.device)
+                    delta = self.residual(z, unit[:, s], feature, change, steps)
+                    out.append(chunk[:, s] + delta * (0.5 * (self.action_high - self.action_low)))
+                return torch.stack(out, dim=1)
+            feats = feature.unsqueeze(1).expand(-1, cfg.n_action_steps, -1)
+            return from_unit_range(self.decoder(z, feats), self.action_low, self.action_high)
+        finally:
+            for k, v in saved.items():
+                setattr(self, k, v)
+            self.source.restore(queues)
 
 
 __all__ = ["DCDPPolicy", "BaseMismatchError"]

@@ -1,8 +1,12 @@
-"""``dcdp-latency``: per-step cost of the corrector alone, with and without the per-frame feature cache.
+"""``dcdp-latency``: per-step cost of every execution mode, timed through ``select_action`` itself.
 
-Cached (what ``select_action`` does): encode the one new frame, run the temporal extractor over the bank
-of M cached tokens, one GRU step. Uncached (the authors' code): encode all M frames of the window every
-step, then the same. Batch 1, CPU, after a warm-up; prints a Markdown table and writes JSON.
+The loop is ``lerobot-eval``'s (pre-processor -> ``select_action`` -> post-processor, one PushT env step),
+batch 1 and batch 50, one thread, static PushT, modes interleaved episode by episode so they share the
+same machine state. Per mode: mean and p95 per control step over whole episodes (a base call every H
+steps included). Then the corrector's own per-step time, split by part (frame encoding + bank update,
+dynamic extractor, correction head), each part timed by calling the policy's own methods on real
+observations.
+Prints Markdown tables and writes JSON.
 """
 
 from __future__ import annotations
@@ -15,69 +19,99 @@ from pathlib import Path
 import numpy as np
 import torch
 
+MODES = ("open_loop", "dcdp", "object_anchored", "closed_loop")
+
+
+def time_modes(policy, pre, post, modes, episodes: int, steps: int, batch: int, seed: int) -> dict:
+    """Per-step latency of each mode (ms), episodes interleaved across modes."""
+    from lerobot_dcdp.benchmark.rollout import CONDITIONS, rollout
+
+    static = next(c for c in CONDITIONS if c.name == "static")
+    times: dict[str, list[float]] = {m: [] for m in modes}
+    for ep in range(episodes):
+        seeds = list(range(seed + ep * batch, seed + (ep + 1) * batch))
+        for mode in modes:
+            policy.config.execution = mode
+            r = rollout(policy, pre, post, static, seeds, steps)
+            times[mode] += r.step_times_ms[1:]  # the first step pays one-off allocations
+    return {
+        m: {"mean_ms": float(np.mean(t)), "p95_ms": float(np.percentile(t, 95)), "steps": len(t)}
+        for m, t in times.items()
+    }
+
 
 @torch.no_grad()
-def corrector_step_costs(policy, steps: int = 300, warmup: int = 20) -> dict[str, dict[str, float]]:
+def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str, float]:
+    """Mean ms per control step of each part of the DCDP per-step path (batch 1)."""
+    from lerobot_dcdp.benchmark.rollout import _stack_obs
+    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
+
+    env = make_perturbed_env(obs_type="environment_state_agent_pos")
+    obs, _ = env.reset(seed=100_000)
+    from lerobot.envs.utils import preprocess_observation
+
+    batch = pre(preprocess_observation(_stack_obs([obs])))
+    env.close()
+    policy.config.execution = "dcdp"
+    policy.reset()
+    policy.select_action(dict(batch))  # plans a chunk: z, plan-time state
     cfg = policy.config
-    feats = cfg.input_features
-    frame = {k: torch.randn(1, *feats[k].shape) for k in policy._frame_keys}
-    window = {k: v.unsqueeze(1).repeat(1, cfg.n_history, *([1] * (v.dim() - 1))) for k, v in frame.items()}
-    z = torch.zeros(1, cfg.latent_dim)
-    policy._z, policy._h = z, policy.decoder.initial_state(z)
-    bank = policy.frame_encoder(frame).unsqueeze(1).repeat(1, cfg.n_history, 1)
-
-    def cached() -> None:
-        nonlocal bank
-        tok = policy.frame_encoder(frame)
-        bank = torch.cat([bank[:, 1:], tok.unsqueeze(1)], dim=1)
-        f, _ = policy.extractor(bank)
-        policy.decode_step(f, 0)
-
-    def uncached() -> None:
-        f, _ = policy.extractor(policy.frame_encoder(window))
-        policy.decode_step(f, 0)
-
-    out = {}
-    for name, fn in (("cached", cached), ("uncached", uncached)):
-        for _ in range(warmup):
-            fn()
-        t = []
-        for _ in range(steps):
-            t0 = time.perf_counter()
-            fn()
-            t.append((time.perf_counter() - t0) * 1e3)
-        out[name] = {"mean_ms": float(np.mean(t)), "p95_ms": float(np.percentile(t, 95))}
-    return out
+    parts: dict[str, list[float]] = {"frame encoding + bank": [], "extractor": [], "head": []}
+    for i in range(warmup + steps):
+        step = 1 + i % (cfg.n_action_steps - 1)
+        t0 = time.perf_counter()
+        policy._push_frame(batch)
+        t1 = time.perf_counter()
+        feature, _ = policy.extractor(policy._bank)
+        t2 = time.perf_counter()
+        if cfg.correction == "residual":
+            policy.residual_step(feature, step, batch)
+        else:
+            policy.decode_step(feature, step)
+        t3 = time.perf_counter()
+        if i >= warmup:
+            parts["frame encoding + bank"].append((t1 - t0) * 1e3)
+            parts["extractor"].append((t2 - t1) * 1e3)
+            parts["head"].append((t3 - t2) * 1e3)
+    return {k: float(np.mean(v)) for k, v in parts.items()}
 
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="dcdp-latency", description=__doc__.splitlines()[0])
     p.add_argument("--corrector", default="models/pusht-dcdp-state")
-    p.add_argument("--steps", type=int, default=300)
+    p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
+    p.add_argument("--episodes", type=int, default=2, help="episodes per mode and batch size")
+    p.add_argument("--steps", type=int, default=300, help="control steps per episode")
+    p.add_argument("--batches", type=int, nargs="+", default=[1, 50])
     p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--out", default="results/corrector_latency.json")
+    p.add_argument("--out", default="results/latency.json")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
-    import lerobot_policy_dcdp  # noqa: F401
-    from lerobot_dcdp.benchmark.run import machine
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.benchmark.run import git_commit, load_model, machine
 
-    policy = DCDPPolicy.from_pretrained(a.corrector).eval()
-    costs = corrector_step_costs(policy, a.steps)
+    policy, pre, post, ident = load_model(a.corrector)
+    modes = [m for m in a.modes if m != "object_anchored" or policy.config.anchor_feature]
     res = {
-        "corrector": a.corrector,
-        "n_history": policy.config.n_history,
-        "steps": a.steps,
-        "costs": costs,
-        "corrector_params": sum(p.numel() for p in policy.parameters()),
+        "command": "dcdp-latency " + " ".join(argv if argv is not None else []),
+        "identity": ident,
         "machine": machine(),
-        "command": "dcdp-latency " + " ".join(argv or []),
+        "git_commit": git_commit(),
+        "per_step": {},
     }
+    for b in a.batches:
+        res["per_step"][str(b)] = time_modes(policy, pre, post, modes, a.episodes, a.steps, b, 100_000)
+    res["corrector_parts_ms"] = corrector_parts(policy, pre)
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(res, indent=1))
-    print("| corrector step | mean (ms) | p95 (ms) |\n|---|---|---|")
-    for k, v in costs.items():
-        print(f"| {k} (M={policy.config.n_history}) | {v['mean_ms']:.3f} | {v['p95_ms']:.3f} |")
+    for b, per in res["per_step"].items():
+        print(f"\nbatch {b}\n\n| mode | mean ms/step | p95 ms/step |\n|---|---|---|")
+        for m, v in per.items():
+            print(f"| {m} | {v['mean_ms']:.2f} | {v['p95_ms']:.2f} |")
+        if "dcdp" in per and "open_loop" in per:
+            print(f"\nDCDP / open loop = {per['dcdp']['mean_ms'] / per['open_loop']['mean_ms']:.3f}")
+    print("\n| corrector part (batch 1) | mean ms/step |\n|---|---|")
+    for k, v in res["corrector_parts_ms"].items():
+        print(f"| {k} | {v:.3f} |")
 
 
 if __name__ == "__main__":

@@ -33,6 +33,12 @@ CONDITIONS = [
     Condition("random_0.5", "random", 0.5),
     Condition("constant_1.0", "constant", 1.0),
     Condition("random_1.0", "random", 1.0),
+    Condition("constant_1.5", "constant", 1.5),
+    Condition("random_1.5", "random", 1.5),
+    Condition("constant_2.0", "constant", 2.0),
+    Condition("random_2.0", "random", 2.0),
+    Condition("constant_2.5", "constant", 2.5),
+    Condition("random_2.5", "random", 2.5),
 ]
 
 
@@ -69,7 +75,7 @@ def rollout(
     max_steps: int = 300,
     obs_type: str = "environment_state_agent_pos",
     render_seeds: tuple[int, ...] = (),
-    progress=None,
+    env_kwargs: dict | None = None,
 ) -> RolloutResult:
     """Run ``len(seeds)`` episodes in one batch; returns per-episode results and per-step policy times."""
     from lerobot.envs.utils import preprocess_observation
@@ -78,7 +84,10 @@ def rollout(
 
     envs = [
         make_perturbed_env(
-            obs_type=obs_type, max_episode_steps=max_steps, render_mode="rgb_array", **condition.env_kwargs()
+            obs_type=obs_type,
+            max_episode_steps=max_steps,
+            render_mode="rgb_array",
+            **{**condition.env_kwargs(), **(env_kwargs or {})},
         )
         for _ in seeds
     ]
@@ -92,6 +101,9 @@ def rollout(
         s: [envs[i].render()] for i, s in enumerate(seeds) if s in render_seeds
     }
     times: list[float] = []
+    # the policy's own randomness (diffusion noise) is seeded per batch, as lerobot-eval --seed does:
+    # the same command gives the same numbers
+    torch.manual_seed(seeds[0])
     policy.reset()
     for _ in range(max_steps):
         batch = preprocess_observation(_stack_obs(obs))
@@ -111,8 +123,6 @@ def rollout(
                 success[i] = True
             if term or trunc or success[i]:
                 active[i] = False
-        if progress is not None:
-            progress()
         if not active.any():
             break
     for env in envs:

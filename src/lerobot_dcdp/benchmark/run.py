@@ -1,8 +1,9 @@
 """``dcdp-benchmark``: every execution mode x every perturbation, 50 fixed seeds, one protocol.
 
-For each corrector given with ``--model LABEL=DIR`` (default: the shipped diffusion and ACT correctors) the
-base it records is run as ``open_loop`` (H = 8), ``closed_loop`` (H = 1), ``temporal_ensemble`` (H = 1, 0.5)
-and ``dcdp`` (H = 8) on static PushT and under constant / random block drift of 0.5 and 1.0 px per step.
+For each corrector given with ``--model LABEL=DIR`` (default: the shipped diffusion, paper-recipe and ACT
+correctors) the base it records is run as ``open_loop`` (H = 8), ``closed_loop`` (H = 1),
+``temporal_ensemble`` (H = 1, 0.5), ``object_anchored`` (H = 8, when the corrector names an anchor feature)
+and ``dcdp`` (H = 8) on static PushT and under constant / random block drift of 0.5 to 2.5 px per step.
 Seeds 100000.., 300 steps max, an episode ends on success (coverage > 0.95). Writes ``results/benchmark.json``
 (finished cells are kept and not recomputed), the per-step latency at batch 1, a plot, side-by-side videos
 and ``docs/RESULTS.md``.
@@ -21,8 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
-METHODS = ["open_loop", "closed_loop", "temporal_ensemble", "dcdp"]
-DEFAULT_MODELS = {"diffusion": "models/pusht-dcdp-state", "act": "models/pusht-dcdp-act-state"}
+METHODS = ["open_loop", "closed_loop", "temporal_ensemble", "object_anchored", "dcdp"]
+DEFAULT_MODELS = {
+    "diffusion": "models/pusht-dcdp-state",
+    "diffusion_paper_recipe": "models/pusht-dcdp-state-paper-recipe",
+    "act": "models/pusht-dcdp-act-state",
+}
+#: the paper-recipe corrector shares its base with ``diffusion``: only its own DCDP row is run by default
+DEFAULT_METHODS = {"diffusion_paper_recipe": ["dcdp"]}
 
 
 def machine() -> dict:
@@ -148,10 +155,16 @@ def main(argv: list[str] | None = None) -> None:
     for label, path in models.items():
         policy, pre, post, ident = load_model(path)
         results.setdefault("models", {})[label] = ident
+        methods = [
+            m
+            for m in a.methods
+            if (a.model or m in DEFAULT_METHODS.get(label, METHODS))
+            and (m != "object_anchored" or policy.config.anchor_feature)
+        ]
         todo = [
             (m, c)
             for c in a.conditions
-            for m in a.methods
+            for m in methods
             if a.force or not _fresh(results["cells"].get(f"{label}|{m}|{c}"), ident, seeds, a.max_steps)
         ]
         bar = tqdm(total=len(todo) * a.max_steps, desc=f"{label}: rollouts", unit="step")
@@ -170,7 +183,6 @@ def main(argv: list[str] | None = None) -> None:
                         seeds[i : i + a.batch_size],
                         a.max_steps,
                         render_seeds=render,
-                        progress=lambda: None,
                     )
                 )
             bar.update(a.max_steps)
@@ -201,9 +213,9 @@ def main(argv: list[str] | None = None) -> None:
             # latency is compared within one run: re-time every method when any of them is stale
             stale = a.force or not all(
                 _fresh(results["latency"].get(f"{label}|{m}"), ident, seeds[:1], a.latency_steps)
-                for m in a.methods
+                for m in methods
             )
-            for method in a.methods if stale else []:
+            for method in methods if stale else []:
                 key = f"{label}|{method}"
                 set_mode(policy, method)
                 r = rollout(policy, pre, post, conds["static"], seeds[:1], a.latency_steps)

@@ -158,11 +158,6 @@ class BlockPerturbation(gym.Wrapper):
         """Direction (degrees) that the next step uses unless a redraw is due; NaN in mode ``none``."""
         return self._dir_deg
 
-    @property
-    def elapsed_steps(self) -> int:
-        """Control steps taken since the last reset."""
-        return self._t
-
     def _info(self, info: dict[str, Any], offset: np.ndarray, clipped: bool) -> dict[str, Any]:
         info["perturbation_offset"] = np.asarray(offset, dtype=np.float64).copy()
         info["perturbation_direction_deg"] = float(self._dir_deg)

@@ -131,15 +131,6 @@ class EpisodeSpec:
             return base
         return [f"{arm}_{n}" for arm in self.arms for n in base]
 
-    def schema(self) -> tuple:
-        """Everything that must agree between episodes of one dataset."""
-        return (
-            self.layout,
-            self.arms,
-            self.pose_dim,
-            tuple((c.name, c.height, c.width) for c in self.cameras),
-        )
-
 
 def find_episode_files(input_dir: str | Path) -> list[tuple[Path, str]]:
     """List the episode files under ``input_dir`` with their default task name.

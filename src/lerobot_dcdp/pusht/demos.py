@@ -24,6 +24,7 @@ EVAL_SEED_START = 100_000
 FPS = 10
 TASK = "Push the T-shaped block onto the T-shaped target."
 IMAGE_SIZE = 96
+MARKER = ".dcdp_pusht_demos"
 
 
 @dataclass
@@ -106,9 +107,13 @@ def run_episode(
             if len(cols["action"]) >= max_steps:
                 break
     if success:
-        hold = np.asarray(u.agent.position, dtype=float)
+        # hold: the agent's target is where the agent is, every step (not its last push target)
         for _ in range(hold_steps):
-            step(hold)
+            step(np.asarray(u.agent.position, dtype=float))
+        # the episode ends in the success state: drop trailing hold frames whose step left it
+        last = max(i for i, ok in enumerate(cols["success"]) if ok)
+        for k in cols:
+            del cols[k][last + 1 :]
     env.close()
     return Episode(
         seed=seed,
@@ -166,9 +171,17 @@ def record_demonstrations(
             f"seed={seed}: demonstration seeds {seed}..{seed + max_tries} would reach the evaluation seeds "
             f"(>= {EVAL_SEED_START}); pick a smaller --seed"
         )
-    if root.exists() and any(root.iterdir()) and not force:
-        raise ValueError(f"root={root} already exists; pass --force to overwrite it")
+    if root.exists() and any(root.iterdir()):
+        if not (root / MARKER).is_file():
+            raise ValueError(
+                f"root={root} exists and is not an output of dcdp-pusht-demos (no {MARKER}); refusing to "
+                "touch it: pick another --root"
+            )
+        if not force:
+            raise ValueError(f"root={root} already exists; pass --force to overwrite it")
     root.parent.mkdir(parents=True, exist_ok=True)
+    for stale in root.parent.glob(f".{root.name}.tmp-*"):  # left by a killed earlier run
+        shutil.rmtree(stale, ignore_errors=True)
     tmp_parent = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
     tmp_root = tmp_parent / root.name
     try:
@@ -217,7 +230,8 @@ def record_demonstrations(
                 pool.terminate()
         ds.finalize()
         if kept < episodes:
-            raise RuntimeError(f"only {kept} of {tried} expert episodes succeeded; wanted {episodes}")
+            raise ValueError(f"only {kept} of {tried} expert episodes succeeded; wanted {episodes}")
+        (tmp_root / MARKER).write_text(f"episodes={kept} seed={seed}\n")
         if root.exists():
             shutil.rmtree(root)
         tmp_root.rename(root)

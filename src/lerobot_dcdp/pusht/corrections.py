@@ -1,0 +1,442 @@
+"""``dcdp-record-corrections``: stale chunks and a teacher's corrections of them, as a LeRobotDataset v3.
+
+The training signal of the ``residual`` corrector (docs/METHOD.md): the frozen base runs as it does at
+deployment -- one chunk every H steps -- on PushT with the T block drifting, and every executed step is
+labelled with what a teacher would do with the stale chunk. Per frame the dataset holds
+
+- ``observation.state``, ``observation.environment_state``: the observation of that step (raw);
+- ``observation.dcdp_plan`` (L, A) and ``observation.dcdp_plan_step`` (1,): the chunk as the base planned
+  it at the chunk start, and the step s of this frame in it;
+- ``action``: the teacher's action for step s; ``executed_action``: what was actually sent to the env;
+- ``next.reward``, ``next.success``, ``next.done``.
+
+Teachers:
+
+- ``object_anchored``: the planned action carried along with the least-squares rigid motion of the block
+  keypoints since plan time (the policy's training-free ``object_anchored`` mode), measured ``lookahead``
+  steps later (hindsight: the recorded future is known, so ``lookahead > 0`` labels the action that
+  anticipates where the block will be; a learned corrector must predict that from its history).
+- ``anchored_when_drifting`` (privileged: it knows the episode's drift): the same, but in episodes without
+  drift the label is the plan itself -- where only the pusher moves the block, the chunk needs no correction
+  (anchoring would add the block's push-induced motion to a plan that already expects it) -- and those
+  episodes are driven open loop (unless ``execution`` is ``dcdp``). The student has to tell drift from
+  pushing from its observations. ``--ramp r``: the share of the correction grows linearly with the
+  episode's drift magnitude, full from r px/step on (small drifts barely cost the base: docs/ANALYSIS.md).
+
+``execution`` picks who drives the env: ``object_anchored`` (the teacher), ``open_loop`` (the base) or
+``dcdp`` (a trained corrector: a DAgger round, visiting the states the learner visits).
+
+Drift per episode is drawn from the episode's seed: none with probability ``static_fraction``, else constant
+(direction uniform on the circle) or random (5 directions drawn uniformly, redrawn every 25/50/100 steps),
+with a magnitude uniform in ``[0, max_magnitude]`` px/step. Seeds must stay below the evaluation seeds
+(100000..).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lerobot_dcdp.pusht.demos import EVAL_SEED_START, FPS, TASK
+
+EXECUTIONS = ("object_anchored", "open_loop", "dcdp")
+TEACHERS = ("object_anchored", "anchored_when_drifting")
+MARKER = ".dcdp_corrections"
+
+
+@dataclass
+class DriftSpec:
+    """The perturbation of one recorded episode."""
+
+    perturbation: str
+    magnitude: float
+    direction_deg: float
+    directions_deg: tuple[float, ...]
+    resample_every: int
+
+    def env_kwargs(self) -> dict:
+        return {
+            "perturbation": self.perturbation,
+            "magnitude": self.magnitude,
+            "direction_deg": self.direction_deg,
+            "directions_deg": self.directions_deg,
+            "resample_every": self.resample_every,
+        }
+
+
+def drift_for_seed(seed: int, max_magnitude: float, static_fraction: float) -> DriftSpec:
+    """The drift of episode ``seed`` (a pure function of its arguments)."""
+    rng = np.random.default_rng([seed, 7_919])
+    static = rng.random() < static_fraction
+    kind = "constant" if rng.random() < 0.5 else "random"
+    mag = float(rng.uniform(0.0, max_magnitude))
+    direction = float(rng.uniform(0.0, 360.0))
+    dirs = tuple(float(d) for d in rng.uniform(0.0, 360.0, 5))
+    every = int(rng.choice([25, 50, 100]))
+    if static or mag == 0.0:
+        return DriftSpec("none", 0.0, direction, dirs, every)
+    return DriftSpec(kind, mag, direction, dirs, every)
+
+
+def features(plan_length: int, action_dim: int = 2) -> dict:
+    """LeRobotDataset feature spec of recorded corrections."""
+    xy = ["x", "y"]
+    return {
+        "observation.state": {"dtype": "float32", "shape": (2,), "names": xy},
+        "observation.environment_state": {
+            "dtype": "float32",
+            "shape": (16,),
+            "names": [f"kp{i // 2}_{'xy'[i % 2]}" for i in range(16)],
+        },
+        "observation.dcdp_plan": {
+            "dtype": "float32",
+            "shape": (plan_length, action_dim),
+            "names": ["step", "action"],
+        },
+        "observation.dcdp_plan_step": {"dtype": "float32", "shape": (1,), "names": None},
+        "action": {"dtype": "float32", "shape": (action_dim,), "names": xy},
+        "executed_action": {"dtype": "float32", "shape": (action_dim,), "names": xy},
+        "next.reward": {"dtype": "float32", "shape": (1,), "names": None},
+        "next.success": {"dtype": "bool", "shape": (1,), "names": None},
+        "next.done": {"dtype": "bool", "shape": (1,), "names": None},
+    }
+
+
+def anchored_labels(
+    plans: np.ndarray, steps: np.ndarray, keypoints: np.ndarray, lookahead: int
+) -> np.ndarray:
+    """Teacher actions of one episode: ``plan_s`` moved with the block's rigid motion from plan time to
+    ``t + lookahead`` (clamped to the episode's last observation).
+
+    Args:
+        plans: (T, H, A) raw chunk as planned, per frame; steps: (T,) s of each frame.
+        keypoints: (T + 1, N, 2) raw keypoints of every observation, the one after the last step included.
+        lookahead: steps ahead of t at which the block pose is taken (0: the current observation).
+    """
+    from lerobot_dcdp.correction import anchor_actions, rigid_fit_2d
+
+    t_len = len(steps)
+    t = np.arange(t_len)
+    plan_idx = t - steps
+    if (plan_idx < 0).any():
+        raise ValueError("a frame's chunk starts before the episode (plan_step larger than its index)")
+    target = np.minimum(t + lookahead, len(keypoints) - 1)
+    kp = torch.as_tensor(keypoints, dtype=torch.float64)
+    rot, tr = rigid_fit_2d(kp[plan_idx], kp[target])
+    plan_s = torch.as_tensor(plans[t, steps], dtype=torch.float64)
+    return anchor_actions(plan_s, rot, tr).numpy().astype(np.float32)
+
+
+@torch.no_grad()
+def rollout_corrections(
+    policy, pre, post, seeds, specs, max_steps: int, lookahead: int, weights: list[float] | None = None
+) -> list[dict]:
+    """Run one batch of episodes (lock-step) and return each episode's frames with teacher labels
+    (``weights``: per episode, the share of the teacher's correction in the label; default 1)."""
+    from lerobot.envs.utils import preprocess_observation
+
+    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
+
+    envs = [
+        make_perturbed_env(
+            obs_type="environment_state_agent_pos", max_episode_steps=max_steps, **sp.env_kwargs()
+        )
+        for sp in specs
+    ]
+    obs = [env.reset(seed=s)[0] for env, s in zip(envs, seeds, strict=True)]
+    n = len(seeds)
+    cols = [{k: [] for k in ("state", "kp", "plan", "step", "exec", "reward", "success")} for _ in seeds]
+    active = np.ones(n, dtype=bool)
+    torch.manual_seed(seeds[0])  # the base's sampling noise: the same command records the same data
+    policy.reset()
+    for _ in range(max_steps):
+        stacked = {k: np.stack([o[k] for o in obs]) for k in obs[0]}
+        batch = pre(preprocess_observation(stacked))
+        action = post(policy.select_action(batch)).cpu().numpy()
+        plan = post(policy.planned_chunk).cpu().numpy()
+        step = policy.last_step
+        for i in np.flatnonzero(active):
+            c = cols[i]
+            c["state"].append(obs[i]["agent_pos"].astype(np.float32))
+            c["kp"].append(obs[i]["environment_state"].astype(np.float32))
+            c["plan"].append(plan[i].astype(np.float32))
+            c["step"].append(step)
+            c["exec"].append(action[i].astype(np.float32))
+            o, r, term, trunc, info = envs[i].step(action[i])
+            obs[i] = o
+            c["reward"].append(float(r))
+            c["success"].append(bool(info.get("is_success", False)))
+            if term or trunc or c["success"][-1]:
+                active[i] = False
+                c["kp"].append(
+                    o["environment_state"].astype(np.float32)
+                )  # the observation after the last step
+        if not active.any():
+            break
+    for i in np.flatnonzero(active):
+        cols[i]["kp"].append(obs[i]["environment_state"].astype(np.float32))
+    for env in envs:
+        env.close()
+    episodes = []
+    for i, c in enumerate(cols):
+        plans, steps = np.stack(c["plan"]), np.asarray(c["step"])
+        kps = np.stack(c["kp"])
+        plan_s = plans[np.arange(len(steps)), steps]
+        w = 1.0 if weights is None else float(weights[i])
+        labels = plan_s.copy()
+        if w > 0:
+            anchored = anchored_labels(plans, steps, kps.reshape(len(kps), -1, 2), lookahead)
+            labels = plan_s + w * (anchored - plan_s)
+        episodes.append(
+            {
+                "state": np.stack(c["state"]),
+                "kp": kps[:-1],
+                "plan": plans,
+                "step": steps,
+                "label": labels,
+                "exec": np.stack(c["exec"]),
+                "reward": np.asarray(c["reward"], dtype=np.float32),
+                "success": np.asarray(c["success"], dtype=bool),
+            }
+        )
+    return episodes
+
+
+def _weight(spec: DriftSpec, gated: bool, ramp: float) -> float:
+    """Share of the anchoring correction in an episode's labels (``anchored_when_drifting``: none without
+    drift; with ``ramp > 0`` it grows linearly with the drift magnitude up to full at ``ramp`` px/step)."""
+    if not gated:
+        return 1.0
+    if spec.perturbation == "none":
+        return 0.0
+    return 1.0 if ramp <= 0 else min(1.0, spec.magnitude / ramp)
+
+
+def _write_episode(ds, ep: dict) -> None:
+    n = len(ep["step"])
+    for t in range(n):
+        ds.add_frame(
+            {
+                "observation.state": ep["state"][t],
+                "observation.environment_state": ep["kp"][t],
+                "observation.dcdp_plan": ep["plan"][t],
+                "observation.dcdp_plan_step": np.array([ep["step"][t]], dtype=np.float32),
+                "action": ep["label"][t],
+                "executed_action": ep["exec"][t],
+                "next.reward": ep["reward"][t : t + 1],
+                "next.success": ep["success"][t : t + 1],
+                "next.done": np.array([t == n - 1]),
+                "task": TASK,
+            }
+        )
+    ds.save_episode()
+
+
+def load_policy(policy_path: str | None, base_path: str | None, execution: str, anchor_feature: str):
+    """A DCDP policy in ``execution`` mode, from a trained corrector or around a bare base, and its
+    processors."""
+    from lerobot_dcdp.configuration_dcdp import DCDPConfig
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+
+    if (policy_path is None) == (base_path is None):
+        raise ValueError("give exactly one of --policy (a trained corrector) or --base (a bare base policy)")
+    if policy_path is not None:
+        policy = DCDPPolicy.from_pretrained(policy_path)
+        policy.config.anchor_feature = policy.config.anchor_feature or anchor_feature
+    else:
+        if execution == "dcdp":
+            raise ValueError("execution='dcdp' needs a trained corrector: pass --policy, not --base")
+        cfg = DCDPConfig(base_policy_path=base_path, anchor_feature=anchor_feature, device="cpu")
+        policy = DCDPPolicy(cfg)
+    policy.config.execution = execution
+    policy.eval()
+    pre, post = make_dcdp_pre_post_processors(policy.config)
+    return policy, pre, post
+
+
+def record_corrections(
+    root: str | Path,
+    repo_id: str = "local/pusht_corrections",
+    policy_path: str | None = None,
+    base_path: str | None = None,
+    episodes: int = 200,
+    seed: int = 0,
+    execution: str = "object_anchored",
+    teacher: str = "object_anchored",
+    lookahead: int = 0,
+    max_magnitude: float = 2.5,
+    static_fraction: float = 0.1,
+    batch_size: int = 50,
+    max_steps: int = 300,
+    force: bool = False,
+    progress: bool = True,
+    ramp: float = 0.0,
+) -> dict:
+    """Record ``episodes`` episodes of stale chunks and teacher corrections to a LeRobotDataset at ``root``.
+
+    Raises:
+        ValueError: bad arguments, seeds reaching the evaluation seeds, or an existing ``root`` that is not an
+            earlier output of this command (or is one, without ``force``).
+    """
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from tqdm import tqdm
+
+    root = Path(root)
+    if execution not in EXECUTIONS:
+        raise ValueError(f"execution must be one of {EXECUTIONS}, got {execution!r}")
+    if teacher not in TEACHERS:
+        raise ValueError(f"teacher must be one of {TEACHERS}, got {teacher!r}")
+    if episodes < 1 or batch_size < 1 or max_steps < 1:
+        raise ValueError(
+            f"episodes, batch_size, max_steps must be >= 1, got {episodes}, {batch_size}, {max_steps}"
+        )
+    if ramp < 0:
+        raise ValueError(f"ramp must be >= 0, got {ramp}")
+    if lookahead < 0:
+        raise ValueError(f"lookahead must be >= 0, got {lookahead}")
+    if not max_magnitude >= 0 or not 0.0 <= static_fraction <= 1.0:
+        raise ValueError(
+            "max_magnitude must be >= 0 and static_fraction in [0, 1], "
+            f"got {max_magnitude}, {static_fraction}"
+        )
+    if seed < 0 or seed + episodes > EVAL_SEED_START:
+        raise ValueError(
+            f"seeds {seed}..{seed + episodes - 1} must stay in [0, {EVAL_SEED_START}): the evaluation seeds "
+            "are never trained on"
+        )
+    if root.exists() and any(root.iterdir()):
+        if not (root / MARKER).is_file():
+            raise ValueError(
+                f"root={root} exists and is not an output of dcdp-record-corrections; refusing it"
+            )
+        if not force:
+            raise ValueError(f"root={root} already exists; pass --force to overwrite it")
+    policy, pre, post = load_policy(policy_path, base_path, execution, "observation.environment_state")
+    horizon = policy.config.n_action_steps
+    root.parent.mkdir(parents=True, exist_ok=True)
+    tmp_parent = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
+    tmp_root = tmp_parent / root.name
+    seeds = list(range(seed, seed + episodes))
+    specs = [drift_for_seed(s, max_magnitude, static_fraction) for s in seeds]
+    frames = 0
+    gap = []
+    try:
+        ds = LeRobotDataset.create(
+            repo_id=repo_id,
+            fps=FPS,
+            features=features(horizon),
+            root=tmp_root,
+            robot_type="pusht",
+            use_videos=False,
+        )
+        bar = tqdm(total=episodes, desc=f"episodes ({execution})", disable=not progress)
+        gated = teacher == "anchored_when_drifting"
+        groups = [(False, [i for i, sp in enumerate(specs) if not (gated and sp.perturbation == "none")])]
+        groups.append((True, [i for i, sp in enumerate(specs) if gated and sp.perturbation == "none"]))
+        for plan_labels, idx in groups:
+            policy.config.execution = "open_loop" if plan_labels and execution != "dcdp" else execution
+            weight = [0.0 if plan_labels else _weight(specs[i], gated, ramp) for i in idx]
+            for j in range(0, len(idx), batch_size):
+                part = idx[j : j + batch_size]
+                for ep in rollout_corrections(
+                    policy,
+                    pre,
+                    post,
+                    [seeds[i] for i in part],
+                    [specs[i] for i in part],
+                    max_steps,
+                    lookahead,
+                    weight[j : j + batch_size],
+                ):
+                    _write_episode(ds, ep)
+                    frames += len(ep["step"])
+                    gap.append(
+                        np.linalg.norm(
+                            ep["label"] - ep["plan"][np.arange(len(ep["step"])), ep["step"]], axis=-1
+                        )
+                    )
+                    bar.update(1)
+        bar.close()
+        ds.finalize()
+        (tmp_root / MARKER).write_text(
+            f"execution={execution} teacher={teacher} lookahead={lookahead} "
+            f"seeds={seed}..{seed + episodes - 1}\n"
+        )
+        if root.exists():
+            shutil.rmtree(root)
+        tmp_root.rename(root)
+    finally:
+        shutil.rmtree(tmp_parent, ignore_errors=True)
+    gap_all = np.concatenate(gap)
+    return {
+        "episodes": episodes,
+        "frames": frames,
+        "root": str(root),
+        "mean_correction_px": float(gap_all.mean()),
+        "p90_correction_px": float(np.percentile(gap_all, 90)),
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(prog="dcdp-record-corrections", description=__doc__.splitlines()[0])
+    p.add_argument("--root", required=True, help="output directory of the dataset")
+    p.add_argument("--repo-id", default="local/pusht_corrections")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--policy", help="a trained DCDP corrector (its base plans the chunks)")
+    src.add_argument("--base", help="a bare chunking base policy (pretrained_model dir)")
+    p.add_argument("--execution", default="object_anchored", choices=EXECUTIONS, help="who drives the env")
+    p.add_argument("--teacher", default="object_anchored", choices=TEACHERS)
+    p.add_argument(
+        "--ramp",
+        type=float,
+        default=0.0,
+        help="anchored_when_drifting: full correction from this drift magnitude on, linear below (0: any)",
+    )
+    p.add_argument(
+        "--lookahead", type=int, default=0, help="hindsight: block pose taken this many steps later"
+    )
+    p.add_argument("--episodes", type=int, default=200)
+    p.add_argument("--seed", type=int, default=0, help="first episode seed (episodes must stay below 100000)")
+    p.add_argument("--max-magnitude", type=float, default=2.5, help="drift magnitude ~ U[0, this] px/step")
+    p.add_argument("--static-fraction", type=float, default=0.1, help="share of episodes without drift")
+    p.add_argument("--batch-size", type=int, default=50, help="envs rolled out together")
+    p.add_argument("--max-steps", type=int, default=300)
+    p.add_argument("--force", action="store_true", help="overwrite an earlier output at --root")
+    a = p.parse_args(argv)
+    torch.set_num_threads(1)
+    try:
+        info = record_corrections(
+            a.root,
+            a.repo_id,
+            a.policy,
+            a.base,
+            a.episodes,
+            a.seed,
+            a.execution,
+            a.teacher,
+            a.lookahead,
+            a.max_magnitude,
+            a.static_fraction,
+            a.batch_size,
+            a.max_steps,
+            a.force,
+            ramp=a.ramp,
+        )
+    except ValueError as e:
+        sys.exit(f"dcdp-record-corrections: error: {e}")
+    print(
+        f"wrote {info['episodes']} episodes ({info['frames']} frames) to {info['root']}; teacher correction "
+        f"mean {info['mean_correction_px']:.2f} px, p90 {info['p90_correction_px']:.2f} px"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,302 @@
+"""Object anchoring (pure math and execution mode), recorded corrections, and the residual corrector."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from helpers import env_observations, make_dcdp_policy, training_batches
+
+from lerobot_dcdp.correction import anchor_actions, normalize, rigid_fit_2d, unnormalize
+
+
+def _rotation(deg: float) -> torch.Tensor:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return torch.tensor([[c, -s], [s, c]], dtype=torch.float64)
+
+
+# ---------------------------------------------------------------- pure math
+def test_rigid_fit_recovers_known_motions() -> None:
+    g = torch.Generator().manual_seed(0)
+    p = torch.rand(4, 8, 2, generator=g, dtype=torch.float64) * 300
+    angles, shifts = [0.0, 30.0, -90.0, 179.0], torch.tensor([[0, 0], [5, -3], [-40, 12], [1.5, 2.5]])
+    rot = torch.stack([_rotation(a) for a in angles])
+    q = p @ rot.transpose(1, 2) + shifts.unsqueeze(1).double()
+    r_hat, t_hat = rigid_fit_2d(p, q)
+    torch.testing.assert_close(r_hat, rot, atol=1e-9, rtol=0)
+    torch.testing.assert_close(t_hat, shifts.double(), atol=1e-9, rtol=0)
+    # a planned action moves with the object: (100, 50) rotated by 30 degrees about the origin, then shifted
+    a = torch.tensor([[100.0, 50.0]] * 4, dtype=torch.float64)
+    c, s = math.cos(math.radians(30)), math.sin(math.radians(30))
+    expected = torch.tensor([100 * c - 50 * s + 5, 100 * s + 50 * c - 3], dtype=torch.float64)
+    torch.testing.assert_close(anchor_actions(a, r_hat, t_hat)[1], expected)
+    torch.testing.assert_close(anchor_actions(a, r_hat, t_hat)[0], a[0])
+    torch.testing.assert_close(
+        anchor_actions(a.unsqueeze(1), r_hat, t_hat)[:, 0], anchor_actions(a, r_hat, t_hat)
+    )
+
+
+def test_rigid_fit_is_identity_for_a_still_object_and_least_squares_under_noise() -> None:
+    p = torch.rand(3, 8, 2, dtype=torch.float64) * 500
+    r_hat, t_hat = rigid_fit_2d(p, p.clone())
+    torch.testing.assert_close(r_hat, torch.eye(2, dtype=torch.float64).expand(3, 2, 2), atol=1e-12, rtol=0)
+    torch.testing.assert_close(t_hat, torch.zeros(3, 2, dtype=torch.float64), atol=1e-9, rtol=0)
+    chunk = torch.rand(3, 8, 3, dtype=torch.float64)
+    torch.testing.assert_close(anchor_actions(chunk, r_hat, t_hat), chunk, atol=1e-9, rtol=0)
+    # noisy target: the fitted motion's residual is no larger than that of the true motion
+    q = p @ _rotation(10).T + torch.tensor([3.0, 4.0], dtype=torch.float64)
+    q_noisy = q + 0.5 * torch.randn_like(q)
+    r_hat, t_hat = rigid_fit_2d(p, q_noisy)
+    fit = ((p @ r_hat.transpose(1, 2) + t_hat.unsqueeze(1) - q_noisy) ** 2).sum()
+    true = ((q - q_noisy) ** 2).sum()
+    assert fit <= true + 1e-9
+
+
+def test_anchor_actions_keeps_extra_dims_and_rejects_bad_shapes() -> None:
+    rot, t = _rotation(90).expand(1, 2, 2), torch.tensor([[1.0, 2.0]], dtype=torch.float64)
+    out = anchor_actions(torch.tensor([[1.0, 0.0, 7.0]], dtype=torch.float64), rot, t)
+    torch.testing.assert_close(out, torch.tensor([[1.0, 3.0, 7.0]], dtype=torch.float64))
+    with pytest.raises(ValueError, match=r"\(B, N, 2\)"):
+        rigid_fit_2d(torch.zeros(2, 4, 3), torch.zeros(2, 4, 3))
+
+
+@pytest.mark.parametrize("mode", ["MIN_MAX", "MEAN_STD", "IDENTITY"])
+def test_normalize_round_trip(mode: str) -> None:
+    stats = {
+        "min": torch.tensor([0.0, 10.0]),
+        "max": torch.tensor([512.0, 30.0]),
+        "mean": torch.tensor([256.0, 20.0]),
+        "std": torch.tensor([100.0, 2.0]),
+    }
+    x = torch.tensor([[0.0, 10.0], [512.0, 30.0], [100.0, 25.0]])
+    torch.testing.assert_close(unnormalize(normalize(x, stats, mode), stats, mode), x)
+    if mode == "MIN_MAX":
+        torch.testing.assert_close(normalize(x, stats, mode)[:2], torch.tensor([[-1.0, -1.0], [1.0, 1.0]]))
+    with pytest.raises(ValueError, match="QUANTILES"):
+        normalize(x, stats, "QUANTILES")
+
+
+def test_anchored_labels_follow_the_block_with_lookahead() -> None:
+    from lerobot_dcdp.pusht.corrections import anchored_labels
+
+    kp0 = np.random.default_rng(0).uniform(100, 400, (8, 2))
+    # the block translates by (2, -1) per step; 5 observations (4 steps + the final one)
+    kps = np.stack([kp0 + np.array([2.0, -1.0]) * t for t in range(5)])
+    plans = np.repeat(np.arange(8 * 2, dtype=np.float32).reshape(1, 8, 2), 4, axis=0)
+    steps = np.array([0, 1, 2, 0])  # the last frame starts a new chunk
+    got = anchored_labels(plans, steps, kps, lookahead=0)
+    expected = plans[np.arange(4), steps] + np.array([[0, 0], [2, -1], [4, -2], [0, 0]])
+    np.testing.assert_allclose(got, expected, atol=1e-4)
+    got = anchored_labels(plans, steps, kps, lookahead=2)  # frame 3 looks at kp[4] (clamped end), plan at 3
+    expected = plans[np.arange(4), steps] + np.array([[4, -2], [6, -3], [8, -4], [2, -1]])
+    np.testing.assert_allclose(got, expected, atol=1e-4)
+    with pytest.raises(ValueError, match="starts before the episode"):
+        anchored_labels(plans, np.array([1, 2, 3, 4]), kps, 0)
+
+
+# ---------------------------------------------------------------- execution mode object_anchored
+def _normalised(policy, n_envs: int, steps: int) -> list[dict]:
+    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+
+    pre, _ = make_dcdp_pre_post_processors(policy.config)
+    return [pre(dict(o)) for o in env_observations(n_envs, steps)]
+
+
+def test_object_anchored_needs_an_anchor(diffusion_base, demo_root) -> None:
+    with pytest.raises(ValueError, match="anchor_feature"):
+        make_dcdp_policy(diffusion_base, demo_root, execution="object_anchored")
+    with pytest.raises(ValueError, match="xy keypoints"):
+        make_dcdp_policy(
+            diffusion_base, demo_root, execution="object_anchored", anchor_feature="observation.state"
+        )  # 2 values: one point only
+
+
+def test_object_anchored_is_open_loop_while_the_object_stands_still_and_follows_it(
+    diffusion_base, demo_root
+) -> None:
+    kw = dict(anchor_feature="observation.environment_state")
+    anchored = make_dcdp_policy(diffusion_base, demo_root, execution="object_anchored", **kw).eval()
+    plain = make_dcdp_policy(diffusion_base, demo_root, execution="open_loop", **kw).eval()
+    first = _normalised(plain, 2, 1)[0]
+    still = [dict(first) for _ in range(8)]
+    torch.manual_seed(0)
+    a = torch.stack([anchored.select_action(dict(o)) for o in still])
+    torch.manual_seed(0)
+    b = torch.stack([plain.select_action(dict(o)) for o in still])
+    torch.testing.assert_close(a, b, atol=1e-5, rtol=0)
+    # the block moves by +10 px in x (raw) after plan time: every later action moves by +10 px too
+    key = "observation.environment_state"
+    raw = anchored._norm(key, first[key], inverse=True)
+    moved = dict(first)
+    moved[key] = anchored._norm(key, raw + torch.tensor([10.0, 0.0]).repeat(8))
+    anchored.reset()
+    torch.manual_seed(0)
+    anchored.select_action(dict(first))
+    got = anchored._norm("action", anchored.select_action(moved), inverse=True)
+    want = anchored._norm("action", anchored.planned_chunk[:, 1], inverse=True) + torch.tensor([10.0, 0.0])
+    torch.testing.assert_close(got, want, atol=1e-3, rtol=0)
+
+
+# ---------------------------------------------------------------- recorded corrections + residual corrector
+@pytest.fixture(scope="module")
+def corrections_root(diffusion_base, tmp_path_factory):
+    from lerobot_dcdp.pusht.corrections import record_corrections
+
+    root = tmp_path_factory.mktemp("corr") / "pusht_corrections"
+    info = record_corrections(
+        root,
+        "local/test",
+        base_path=str(diffusion_base),
+        episodes=3,
+        seed=5,
+        max_magnitude=3.0,
+        static_fraction=0.0,
+        batch_size=3,
+        max_steps=24,
+        progress=False,
+    )
+    assert info["frames"] > 0
+    return root
+
+
+def test_recorded_corrections_hold_the_stale_plan_and_the_teacher(corrections_root) -> None:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_dcdp.pusht.corrections import drift_for_seed
+
+    ds = LeRobotDataset("local/test", root=corrections_root)
+    assert {"observation.dcdp_plan", "observation.dcdp_plan_step", "action", "executed_action"} <= set(
+        ds.features
+    )
+    assert ds.meta.total_episodes == 3
+    assert all(drift_for_seed(s, 3.0, 0.0).perturbation != "none" for s in (5, 6, 7))
+    plan = torch.stack([ds[i]["observation.dcdp_plan"] for i in range(24)])
+    step = torch.stack([ds[i]["observation.dcdp_plan_step"] for i in range(24)]).reshape(-1).long()
+    action = torch.stack([ds[i]["action"] for i in range(24)])
+    executed = torch.stack([ds[i]["executed_action"] for i in range(24)])
+    assert step.tolist() == [t % 8 for t in range(24)]
+    # within a chunk the plan is the one made at its start; the teacher executed its own labels
+    assert torch.equal(plan[1], plan[0]) and not torch.equal(plan[8], plan[0])
+    torch.testing.assert_close(action, executed, atol=1e-3, rtol=0)
+    # at plan time the teacher takes the plan as it is; later the block has drifted and so has the label
+    torch.testing.assert_close(action[0], plan[0, 0], atol=1e-3, rtol=0)
+    # the block only drifts here (constant, seed 5): the label moves by the drift since plan time, s * m px
+    gaps = (action - plan[torch.arange(24), step]).norm(dim=-1)
+    magnitude = drift_for_seed(5, 3.0, 0.0).magnitude
+    torch.testing.assert_close(gaps, step.float() * magnitude, atol=2e-3, rtol=0)
+
+
+def test_record_corrections_refuses_eval_seeds_and_foreign_folders(diffusion_base, tmp_path) -> None:
+    from lerobot_dcdp.pusht.corrections import record_corrections
+
+    with pytest.raises(ValueError, match="evaluation seeds"):
+        record_corrections(tmp_path / "x", base_path=str(diffusion_base), episodes=2, seed=99_999)
+    (tmp_path / "home").mkdir()
+    (tmp_path / "home" / "precious.txt").write_text("keep me")
+    with pytest.raises(ValueError, match="not an output of dcdp-record-corrections"):
+        record_corrections(tmp_path / "home", base_path=str(diffusion_base), episodes=1, force=True)
+    assert (tmp_path / "home" / "precious.txt").read_text() == "keep me"
+
+
+def _residual_policy(diffusion_base, corrections_root, **kw):
+    return make_dcdp_policy(
+        diffusion_base,
+        corrections_root,
+        correction="residual",
+        latent_dim=4,
+        observation_features=["observation.environment_state"],
+        **kw,
+    )
+
+
+def test_fresh_residual_corrector_is_open_loop_bit_for_bit(diffusion_base, corrections_root) -> None:
+    policy = _residual_policy(diffusion_base, corrections_root).eval()
+    assert "observation.dcdp_plan" not in policy.config.input_features
+    obs = _normalised(policy, 2, 20)
+    torch.manual_seed(3)
+    policy.config.execution = "open_loop"
+    policy.reset()
+    expected = [policy.select_action(dict(o)) for o in obs]
+    torch.manual_seed(3)
+    policy.config.execution = "dcdp"
+    policy.reset()
+    got = [policy.select_action(dict(o)) for o in obs]
+    for e, g in zip(expected, got, strict=True):
+        assert torch.equal(e, g)
+
+
+def test_residual_loss_falls_and_stage2_matches_training(diffusion_base, corrections_root) -> None:
+    torch.manual_seed(0)
+    policy = _residual_policy(diffusion_base, corrections_root, optimizer_lr=3e-3)
+    assert policy.config.observation_delta_indices == list(range(-7, 1))
+    batches = training_batches(policy, corrections_root, batch_size=32)
+    opt = torch.optim.Adam(policy.get_optim_params(), lr=3e-3)
+    first = None
+    policy.train()
+    for _ in range(60):
+        loss, parts = policy(next(batches))
+        first = first if first is not None else parts
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    policy.eval()
+    with torch.no_grad():
+        _, last = policy(next(batches))
+    # a fresh residual reproduces the plan: its error is the plan's gap to the teacher; training closes it
+    assert first["recon_loss"] == pytest.approx(first["plan_gap"], rel=1e-4)
+    assert last["recon_loss"] < 0.5 * last["plan_gap"]
+    # the trained corrector now moves the plan at stage 2, and only inside a chunk's later steps
+    obs = _normalised(policy, 2, 9)
+    torch.manual_seed(0)
+    acts = [policy.select_action(dict(o)) for o in obs]
+    plan = policy.planned_chunk
+    assert not torch.equal(acts[5], plan[:, 5])
+
+
+def test_residual_training_without_recorded_plans_says_what_to_do(diffusion_base, demo_root) -> None:
+    policy = make_dcdp_policy(diffusion_base, demo_root, correction="residual", latent_dim=4)
+    batch = next(training_batches(policy, demo_root, batch_size=4))
+    with pytest.raises(ValueError, match="dcdp-record-corrections"):
+        policy(batch)
+
+
+def test_gated_teacher_leaves_chunks_alone_without_drift(diffusion_base, tmp_path) -> None:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_dcdp.pusht.corrections import record_corrections
+
+    root = tmp_path / "gated"
+    record_corrections(
+        root,
+        "local/test",
+        base_path=str(diffusion_base),
+        episodes=2,
+        seed=11,
+        static_fraction=1.0,
+        teacher="anchored_when_drifting",
+        batch_size=2,
+        max_steps=12,
+        progress=False,
+    )
+    ds = LeRobotDataset("local/test", root=root)
+    for i in range(len(ds)):
+        item = ds[i]
+        s = int(item["observation.dcdp_plan_step"].item())
+        planned = item["observation.dcdp_plan"][s]
+        assert torch.equal(item["action"], planned) and torch.equal(item["executed_action"], planned)
+
+
+def test_training_sample_pairs_each_frame_with_its_own_plan_step(diffusion_base, corrections_root) -> None:
+    """The teacher here is the anchoring itself: the proposal built in the loss from the sample's plan-time
+    frame, plan and step must reproduce the recorded label exactly (misaligned frames/steps would not)."""
+    policy = _residual_policy(
+        diffusion_base, corrections_root, anchor_input=True, anchor_feature="observation.environment_state"
+    ).eval()
+    batches = training_batches(policy, corrections_root, batch_size=64)
+    for _ in range(2):
+        batch = next(batches)
+        _, parts = policy(batch)
+        assert parts["plan_gap"] > 1e-5  # the block drifted: the labels differ from the plan ...
+        assert parts["anchor_gap"] < 1e-9  # ... exactly as the rigid motion since plan time says

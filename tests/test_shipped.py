@@ -1,0 +1,84 @@
+"""What a fresh clone ships: every model under models/ loads (from any working directory) and runs every
+execution mode, and every config under configs/ parses."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import draccus
+import pytest
+import torch
+from helpers import env_observations
+
+ROOT = Path(__file__).resolve().parents[1]
+MODELS = sorted(p.parent for p in (ROOT / "models").glob("*/config.json"))
+CORRECTORS = [p for p in MODELS if json.loads((p / "config.json").read_text())["type"] == "dcdp"]
+
+
+def test_models_are_small_and_complete() -> None:
+    total = sum(f.stat().st_size for f in (ROOT / "models").rglob("*") if f.is_file())
+    assert total <= 40 * 2**20, f"models/ holds {total / 2**20:.1f} MB (limit 40 MB)"
+    assert CORRECTORS, "no shipped corrector found"
+    for m in MODELS:
+        for name in (
+            "config.json",
+            "model.safetensors",
+            "policy_preprocessor.json",
+            "policy_postprocessor.json",
+        ):
+            assert (m / name).is_file(), f"{m.name} lacks {name}"
+
+
+@pytest.mark.parametrize("corrector", CORRECTORS, ids=lambda p: p.name)
+def test_shipped_corrector_runs_every_mode_from_another_directory(corrector, tmp_path, monkeypatch) -> None:
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+
+    stored = json.loads((corrector / "config.json").read_text())["base_policy_path"]
+    assert not Path(stored).is_absolute(), "a shipped corrector names its base relative to itself"
+    monkeypatch.chdir(tmp_path)  # not the repository root
+    policy = DCDPPolicy.from_pretrained(corrector).eval()
+    pre, post = make_dcdp_pre_post_processors(policy.config)
+    obs = [pre(dict(o)) for o in env_observations(2, 10)]
+    modes = ["open_loop", "closed_loop", "temporal_ensemble", "dcdp"]
+    if policy.config.anchor_feature:
+        modes.append("object_anchored")
+    plans = {}
+    for mode in modes:
+        policy.config.execution = mode
+        policy.reset()
+        torch.manual_seed(0)
+        actions = torch.stack([post(policy.select_action(dict(o))) for o in obs])
+        assert actions.shape == (10, 2, 2) and torch.isfinite(actions).all(), mode
+        assert (actions > -50).all() and (actions < 600).all(), f"{mode}: actions leave the PushT arena"
+        plans[mode] = actions
+    # a shipped corrector changes the open-loop actions (it is not an untrained identity) ...
+    assert not torch.equal(plans["dcdp"], plans["open_loop"])
+    # ... and every mode starts from the same first chunk: step 0 of open loop = step 0 of closed loop
+    torch.testing.assert_close(plans["closed_loop"][0], plans["open_loop"][0])
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "configs").rglob("*.json")), ids=lambda p: p.name)
+def test_every_config_parses(path: Path) -> None:
+    from lerobot.configs.train import TrainPipelineConfig
+    from lerobot.envs.configs import EnvConfig
+
+    import lerobot_policy_dcdp  # noqa: F401
+
+    content = json.loads(path.read_text())
+    if "policy" in content:
+        cfg = draccus.parse(
+            TrainPipelineConfig,
+            config_path=str(path),
+            args=["--policy.base_policy_path=models/pusht-diffusion-state", "--dataset.repo_id=local/x"],
+        )
+        assert cfg.policy.type == "dcdp" and cfg.policy.n_action_steps >= 1
+    else:
+        import lerobot_dcdp.envs  # noqa: F401  (registers pusht_perturbed)
+
+        cfg = draccus.decode(EnvConfig, content["env"])
+        assert cfg.type == content["env"]["type"]
+        for key, value in content["env"].items():
+            if key != "type":
+                assert getattr(cfg, key) == value, key
