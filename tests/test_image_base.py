@@ -35,23 +35,7 @@ def test_image_base_and_image_corrector_train_and_evaluate(tmp_path) -> None:
     )
     ckpt = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
     assert "observation.image" in json.loads((ckpt / "config.json").read_text())["input_features"]
-    out = tmp_path / "eval"
-    run(
-        [
-            str(BIN / "lerobot-eval"),
-            f"--policy.path={ckpt}",
-            "--env.type=pusht",
-            "--env.obs_type=pixels_agent_pos",
-            "--env.episode_length=8",
-            "--eval.n_episodes=1",
-            "--eval.batch_size=1",
-            "--eval.use_async_envs=false",
-            "--policy.device=cpu",
-            f"--output_dir={out}",
-        ],
-        cwd=tmp_path,
-    )
-    assert json.loads((out / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
+    _eval_one_image_episode(ckpt, tmp_path / "eval", "--env.type=pusht", "--env.episode_length=8")
 
     # the corrector on images: ResNet18 per-frame backbone (random weights, nothing downloaded)
     run(
@@ -70,23 +54,31 @@ def test_image_base_and_image_corrector_train_and_evaluate(tmp_path) -> None:
     cfg = json.loads((corrector / "config.json").read_text())
     assert cfg["backbone"] == "auto" and "observation.image" in cfg["input_features"]
     for mode in ("dcdp", "open_loop", "closed_loop"):
-        out = tmp_path / f"eval_{mode}"
-        run(
-            [
-                str(BIN / "lerobot-eval"),
-                f"--policy.path={corrector}",
-                f"--policy.execution={mode}",
-                "--env.type=pusht_perturbed",
-                "--env.perturbation=constant",
-                "--env.magnitude=2",
-                "--env.obs_type=pixels_agent_pos",
-                "--env.episode_length=10",
-                "--eval.n_episodes=1",
-                "--eval.batch_size=1",
-                "--eval.use_async_envs=false",
-                "--policy.device=cpu",
-                f"--output_dir={out}",
-            ],
-            cwd=tmp_path,
+        _eval_one_image_episode(
+            corrector,
+            tmp_path / f"eval_{mode}",
+            f"--policy.execution={mode}",
+            "--env.type=pusht_perturbed",
+            "--env.perturbation=constant",
+            "--env.magnitude=2",
+            "--env.episode_length=10",
         )
-        assert json.loads((out / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
+
+
+def _eval_one_image_episode(policy_dir, out, *flags: str) -> None:
+    """One ``lerobot-eval`` episode on PushT pixels (+ agent position), sync env, CPU."""
+    run(
+        [
+            str(BIN / "lerobot-eval"),
+            f"--policy.path={policy_dir}",
+            *flags,
+            "--env.obs_type=pixels_agent_pos",
+            "--eval.n_episodes=1",
+            "--eval.batch_size=1",
+            "--eval.use_async_envs=false",
+            "--policy.device=cpu",
+            f"--output_dir={out}",
+        ],
+        cwd=out.parent,
+    )
+    assert json.loads((out / "eval_info.json").read_text())["overall"]["n_episodes"] == 1

@@ -227,6 +227,26 @@ def test_fresh_residual_corrector_is_open_loop_bit_for_bit(diffusion_base, corre
         assert torch.equal(e, g)
 
 
+def test_fresh_residual_with_anchor_input_is_open_loop_and_sees_the_proposal(
+    diffusion_base, corrections_root
+) -> None:
+    policy = _residual_policy(
+        diffusion_base, corrections_root, anchor_input=True, anchor_feature="observation.environment_state"
+    ).eval()
+    obs = _normalised(policy, 2, 12)
+    torch.manual_seed(3)
+    policy.config.execution = "open_loop"
+    policy.reset()
+    expected = [policy.select_action(dict(o)) for o in obs]
+    torch.manual_seed(3)
+    policy.config.execution = "dcdp"
+    policy.reset()
+    got = [policy.select_action(dict(o)) for o in obs]
+    for e, g in zip(expected, got, strict=True):
+        assert torch.equal(e, g)
+    assert policy._z is not None and policy._at_plan is not None and policy._anchor_plan is not None
+
+
 def test_residual_loss_falls_and_stage2_matches_training(diffusion_base, corrections_root) -> None:
     torch.manual_seed(0)
     policy = _residual_policy(diffusion_base, corrections_root, optimizer_lr=3e-3)

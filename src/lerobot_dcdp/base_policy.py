@@ -104,11 +104,3 @@ def load_base_stats(ref: str, relative_to: str | Path | None = None) -> dict[str
                 }
                 out[key] = (str(mode), tensors)
     return out
-
-
-def load_base_action_stats(ref: str, relative_to: str | Path | None = None) -> dict | None:
-    """The base's own action statistics, from its saved processors (None when it saved none)."""
-    from lerobot.utils.constants import ACTION
-
-    entry = load_base_stats(ref, relative_to).get(ACTION)
-    return entry[1] if entry else None

@@ -102,15 +102,20 @@ class FrameEncoder(nn.Module):
 
     def forward(self, obs: dict[str, Tensor]) -> Tensor:
         """Frames with any leading shape ``(*lead, feat)`` / ``(*lead, C, H, W)`` -> ``(*lead, d)``."""
-        out = None
+        return self.encode(obs)[0]
+
+    def encode(self, obs: dict[str, Tensor]) -> tuple[Tensor, Tensor | None]:
+        """The frame tokens and the standardised vector inputs they were computed from (None: no vectors)."""
+        out = vec = None
         if self.state is not None:
-            out = self.state(self.vector(obs))
+            vec = self.vector(obs)
+            out = self.state(vec)
         for i, k in enumerate(self.image_keys):
             img = obs[k]
             lead = img.shape[:-3]
             tok = self.image(img.reshape(-1, *img.shape[-3:])).reshape(*lead, -1) + self.cam_embed[i]
             out = tok if out is None else out + tok
-        return out
+        return out, vec
 
 
 class DynamicFeatureExtractor(nn.Module):

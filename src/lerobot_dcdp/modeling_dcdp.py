@@ -139,12 +139,16 @@ class DCDPPolicy(PreTrainedPolicy):
             )
         if dataset_stats is not None:
             self._set_raw_input_scaling(state_dims, dataset_stats)
-        self._base_stats = load_base_stats(config.base_policy_path, config.pretrained_path)
+        self._base_stats = {  # only what (un)normalising needs: a few tensors touched every step
+            key: (mode, {k: v for k, v in stats.items() if k in ("min", "max", "mean", "std")})
+            for key, (mode, stats) in load_base_stats(config.base_policy_path, config.pretrained_path).items()
+        }
         low, high = self._action_range(action_dim)
         self.register_buffer("action_low", low, persistent=False)
         self.register_buffer("action_high", high, persistent=False)
         self._frame_keys = list(state_dims) + image_keys
-        self._base_keys = set(base.config.input_features or {})
+        self._needed_keys = sorted(set(self._frame_keys) | set(base.config.input_features or {}))
+        self.register_buffer("action_half_range", 0.5 * (high - low), persistent=False)
         self.reset()
 
     # ------------------------------------------------------------------ set-up helpers
@@ -235,7 +239,8 @@ class DCDPPolicy(PreTrainedPolicy):
     def _norm(self, key: str, x: Tensor, inverse: bool = False) -> Tensor:
         """(Un)normalise feature ``key`` exactly as the base's saved normaliser does."""
         mode, stats = self._base_stats.get(key, ("IDENTITY", {}))
-        stats = {k: v.to(x.device, x.dtype) for k, v in stats.items()}
+        if any(v.device != x.device or v.dtype != x.dtype for v in stats.values()):
+            stats = {k: v.to(x.device, x.dtype) for k, v in stats.items()}
         return unnormalize(x, stats, mode) if inverse else normalize(x, stats, mode)
 
     def _save_pretrained(self, save_directory, *args, **kwargs) -> None:
@@ -355,14 +360,15 @@ class DCDPPolicy(PreTrainedPolicy):
         """
         cfg = self.config
         plan, step = self._recorded_plan(batch)
-        obs = {k: batch[k] for k in self._frame_keys}
-        frames = self.frame_encoder(obs)  # (B, K, d)
+        frames, vec = self.frame_encoder.encode({k: batch[k] for k in self._frame_keys})  # (B, K, d)
         if frames.dim() != 3:
             raise ValueError(
                 "correction='residual' needs the observation history of the config's delta indices"
             )
         feature, d_last = self.extractor(frames[:, -cfg.n_history :])
-        rep = self._change_repr(obs, frames)  # (B, K, r)
+        # what the head compares between plan time and now: the standardised vector inputs (tokens when the
+        # corrector reads images only), (B, K, r)
+        rep = frames if vec is None else vec
         k = rep.shape[1]
         idx = (k - 1 - step).clamp_min(0).view(-1, 1, 1).expand(-1, 1, rep.shape[-1])
         at_plan = rep.gather(1, idx)[:, 0]
@@ -403,12 +409,6 @@ class DCDPPolicy(PreTrainedPolicy):
             **extra,
         }
 
-    def _change_repr(self, obs: dict[str, Tensor], tokens: Tensor) -> Tensor:
-        """What the residual head compares between plan time and now: the standardised vector inputs, or
-        the frame tokens when the corrector reads images only."""
-        vec = self.frame_encoder.vector(obs)
-        return tokens if vec is None else vec
-
     # ------------------------------------------------------------------ stage 2
     def reset(self) -> None:
         """Clear the history bank and the chunk state, and reset the base (call on env reset)."""
@@ -425,26 +425,25 @@ class DCDPPolicy(PreTrainedPolicy):
         self.last_step: int | None = None
 
     def _check_batch(self, batch: dict[str, Tensor]) -> None:
-        needed = set(self._frame_keys) | self._base_keys
-        if self.config.execution == "object_anchored":
-            if not self.config.anchor_feature:
+        missing = [k for k in self._needed_keys if k not in batch]
+        if self.config.execution == "object_anchored" or self.config.anchor_input:
+            anchor = self.config.anchor_feature
+            if not anchor:
                 raise ValueError(
                     "execution='object_anchored' needs anchor_feature (the object's xy keypoints)"
                 )
-            needed.add(self.config.anchor_feature)
-        missing = sorted(k for k in needed if k not in batch)
+            missing += [anchor] if anchor not in batch else []
         if missing:
             raise ValueError(f"observation is missing {missing}; it has {sorted(batch)}")
 
     def _push_frame(self, batch: dict[str, Tensor]) -> None:
-        obs = {k: batch[k] for k in self._frame_keys}
-        token = self.frame_encoder(obs)  # (B, d): one new frame
+        token, vec = self.frame_encoder.encode({k: batch[k] for k in self._frame_keys})  # one new frame
         if self._bank is None or self._bank.shape[0] != token.shape[0]:
             self._bank = token.unsqueeze(1).repeat(1, self.config.n_history, 1)
         else:
             self._bank = torch.cat([self._bank[:, 1:], token.unsqueeze(1)], dim=1)
         if self.config.correction == "residual":
-            self._rep = self._change_repr(obs, token)
+            self._rep = token if vec is None else vec
 
     def _anchor_points(self, batch: dict[str, Tensor]) -> Tensor:
         """Raw (un-normalised) anchor keypoints (B, N, 2) of the current observation."""
@@ -484,7 +483,7 @@ class DCDPPolicy(PreTrainedPolicy):
             proposal = to_unit_range(self._anchored(plan_s, batch), self.action_low, self.action_high)
             change = torch.cat([change, self.config.change_scale * (proposal - plan_unit)], dim=-1)
         delta = self.residual(self._z, plan_unit, feature, change, s)
-        return plan_s + delta * (0.5 * (self.action_high - self.action_low))
+        return plan_s + delta * self.action_half_range
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor]) -> Tensor:
@@ -506,7 +505,7 @@ class DCDPPolicy(PreTrainedPolicy):
                 self._chunk = chunk[:, :horizon]
                 if mode == "object_anchored" or (mode == "dcdp" and cfg.anchor_input):
                     self._anchor_plan = self._anchor_points(batch)
-                elif mode == "dcdp":
+                if mode == "dcdp":
                     self._z = self.encode_chunk(self._chunk)
                     if cfg.correction == "residual":
                         self._at_plan = self._rep
@@ -568,7 +567,7 @@ class DCDPPolicy(PreTrainedPolicy):
                 for s in range(cfg.n_action_steps):
                     steps = torch.full((chunk.shape[0],), s, dtype=torch.long, device=chunk.device)
                     delta = self.residual(z, unit[:, s], feature, change, steps)
-                    out.append(chunk[:, s] + delta * (0.5 * (self.action_high - self.action_low)))
+                    out.append(chunk[:, s] + delta * self.action_half_range)
                 return torch.stack(out, dim=1)
             feats = feature.unsqueeze(1).expand(-1, cfg.n_action_steps, -1)
             return from_unit_range(self.decoder(z, feats), self.action_low, self.action_high)
