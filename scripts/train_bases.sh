@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Trains the two shipped PushT base policies with the stock lerobot-train on CPU (seed 1000).
-# Usage: scripts/train_bases.sh {diffusion|act} [extra lerobot-train flags, e.g. --resume=true ...]
+# Usage: scripts/train_bases.sh {diffusion|diffusion-continue|act} [extra lerobot-train flags, e.g. --resume=true]
+#   diffusion-continue FROM: 10 000 more steps from the weights in FROM (a pretrained_model dir), lr 1e-4 cosine
 # Data: .venv/bin/dcdp-pusht-demos --root data/pusht_expert --episodes 500 --seed 0 --workers 2
 set -euo pipefail
 kind=$1; shift
@@ -16,13 +17,20 @@ case $kind in
       --policy.normalization_mapping='{"VISUAL": "MEAN_STD", "STATE": "MIN_MAX", "ENV": "MIN_MAX", "ACTION": "MIN_MAX"}' \
       --policy.optimizer_lr=3e-4 --batch_size=64 --steps=10000 --save_freq=2000 \
       --output_dir=${OUT:-runs/diffusion_base} "$@" ;;
+  diffusion-continue)
+    from=$1; shift
+    exec .venv/bin/lerobot-train --policy.path="$from" "${common[@]}" \
+      --policy.optimizer_lr=1e-4 --batch_size=64 --steps=10000 --save_freq=2000 \
+      --output_dir=${OUT:-runs/diffusion_base_continued} "$@" ;;
   act)
+    # ENV: LeRobot's ACT mapping has no entry for environment_state, which would reach it raw (0..512 px)
     exec .venv/bin/lerobot-train --policy.type=act "${common[@]}" \
+      --policy.normalization_mapping='{"VISUAL": "MEAN_STD", "STATE": "MEAN_STD", "ENV": "MEAN_STD", "ACTION": "MEAN_STD"}' \
       --policy.chunk_size=16 --policy.n_action_steps=8 --policy.dim_model=128 --policy.n_heads=4 \
       --policy.dim_feedforward=512 --policy.n_encoder_layers=2 --policy.n_decoder_layers=1 \
       --policy.n_vae_encoder_layers=2 --policy.latent_dim=16 --policy.optimizer_lr=1e-4 \
       --policy.pretrained_backbone_weights=null \
-      --batch_size=64 --steps=4000 --save_freq=2000 \
+      --batch_size=64 --steps=10000 --save_freq=2000 \
       --output_dir=${OUT:-runs/act_base} "$@" ;;
-  *) echo "usage: $0 {diffusion|act}" >&2; exit 2 ;;
+  *) echo "usage: $0 {diffusion|diffusion-continue FROM|act}" >&2; exit 2 ;;
 esac

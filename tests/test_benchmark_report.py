@@ -80,3 +80,25 @@ def test_cells_are_reused_only_for_the_same_models_and_protocol() -> None:
     # a baseline never calls the corrector: a new corrector on the same base reuses it
     assert _fresh(cell("open_loop", "static", 0.5, 0.9), {**IDENT, "corrector_sha256": "other"}, seeds, 300)
     assert not _fresh(None, IDENT, seeds, 300)
+
+
+def test_delay_table_and_plot(tmp_path) -> None:
+    from lerobot_dcdp.benchmark.report import table_delay
+    from lerobot_dcdp.benchmark.run import cell_key
+
+    r = results()
+    assert table_delay(r, "m") == ""  # no delayed cell: no table
+    for method, d, score in [("open_loop", 4, 0.3), ("dcdp", 4, 0.7), ("open_loop", 2, 0.4)]:
+        r["cells"][cell_key("m", method, "constant_2.0", d)] = {
+            **cell(method, "constant_2.0", 0.0, score),
+            "inference_delay": d,
+        }
+    assert cell_key("m", "dcdp", "static") == "m|dcdp|static"
+    t = table_delay(r, "m")
+    assert "| condition | d = 0 | d = 2 | d = 4 | lost d=0 -> 4 |" in t
+    # open loop loses 0.5 - 0.3, DCDP 0.8 - 0.7; the d = 0 cells are the main table's
+    assert "| Open loop (H=8) | constant_2.0 | 0.500 ± 0.100 (0 ± 0 %) | 0.400" in t and "| +0.200 |" in t
+    assert "| DCDP (H=8) | constant_2.0 | 0.800 ± 0.000 (50 ± 35 %) | - | 0.700" in t and "| +0.100 |" in t
+    write_report(r, tmp_path / "RESULTS.md", tmp_path / "benchmark.json")
+    assert "Table 3: a base that answers late" in (tmp_path / "RESULTS.md").read_text()
+    assert (tmp_path / "score_vs_delay.png").stat().st_size > 0

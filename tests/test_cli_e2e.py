@@ -80,10 +80,12 @@ def test_discovery_through_lerobot() -> None:
         "from lerobot.utils.import_utils import register_third_party_plugins as r; r();"
         "from lerobot.policies.factory import get_policy_class, make_policy_config;"
         "from lerobot.envs.configs import EnvConfig;"
-        "print(get_policy_class('dcdp').__name__, EnvConfig.get_choice_class('pusht_perturbed').__name__)"
+        "from lerobot.processor import ProcessorStepRegistry as P;"
+        "print(get_policy_class('dcdp').__name__, EnvConfig.get_choice_class('pusht_perturbed').__name__,"
+        " P.get('dcdp_split_state').__name__)"
     )
     proc = run([sys.executable, "-c", code], cwd=Path.cwd())
-    assert proc.stdout.split()[-2:] == ["DCDPPolicy", "PushTPerturbedEnvConfig"]
+    assert proc.stdout.split()[-3:] == ["DCDPPolicy", "PushTPerturbedEnvConfig", "SplitStateProcessorStep"]
 
 
 @pytest.mark.slow
@@ -96,8 +98,21 @@ def test_train_then_eval(kind, diffusion_base, act_base, demo_root, tmp_path) ->
     weights = load_file(ckpt / "model.safetensors")
     base_weights = load_file(base / "model.safetensors")
     assert not set(weights) & set(base_weights)
-    # the checkpoint normalises with the base's statistics, not the dataset's
-    assert (ckpt / "policy_preprocessor.json").read_text() == (base / "policy_preprocessor.json").read_text()
+    # the checkpoint normalises with the base's statistics, not the dataset's: the base's pre-processor,
+    # behind the step that splits a robot's flattened state (for lerobot-rollout)
+    name = "policy_preprocessor.json"
+    saved, base_pre = (json.loads((d / name).read_text())["steps"] for d in (ckpt, base))
+    assert saved[0] == {
+        "registry_name": "dcdp_split_state",
+        "config": {"splits": [["observation.state", 2], ["observation.environment_state", 16]]},
+    }
+    assert len(saved) == len(base_pre) + 1
+    for ours, theirs in zip(saved[1:], base_pre, strict=True):
+        assert ours["config"] == theirs["config"] and ours["registry_name"] == theirs["registry_name"]
+        assert ("state_file" in ours) == ("state_file" in theirs)
+        if "state_file" in theirs:
+            a, b = load_file(ckpt / ours["state_file"]), load_file(base / theirs["state_file"])
+            assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
     for mode in ("dcdp", "open_loop") if kind == "diffusion" else ("dcdp", "temporal_ensemble"):
         out = tmp_path / f"eval_{mode}"
         evaluate(ckpt, out, f"--policy.execution={mode}")

@@ -320,3 +320,29 @@ def test_training_sample_pairs_each_frame_with_its_own_plan_step(diffusion_base,
         _, parts = policy(batch)
         assert parts["plan_gap"] > 1e-5  # the block drifted: the labels differ from the plan ...
         assert parts["anchor_gap"] < 1e-9  # ... exactly as the rigid motion since plan time says
+
+
+@pytest.mark.parametrize("delay", [0, 3])
+def test_per_chunk_terms_give_the_straightforward_actions(diffusion_base, corrections_root, delay) -> None:
+    """The per-step fast path (head terms summed once per chunk) == the head's plain forward, within 1e-6."""
+    policy = _residual_policy(diffusion_base, corrections_root, inference_delay=delay).eval()
+    torch.manual_seed(7)
+    with torch.no_grad():  # a corrector that moves the plan: every part of the head matters
+        for p in policy.residual.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    obs = _normalised(policy, 2, 20)
+    runs = {}
+    for fast in (True, False):
+        policy.fast_inference = fast
+        torch.manual_seed(3)
+        policy.reset()
+        runs[fast] = torch.stack([policy.select_action(dict(o)) for o in obs])
+        assert (policy._terms is not None) == fast
+        assert (policy._step_graph is not None) == (fast and delay == 0)  # the traced per-step path
+    assert (runs[True] - runs[False]).abs().max() <= 1e-6
+    policy.config.execution = "open_loop"
+    torch.manual_seed(3)
+    policy.reset()
+    open_loop = torch.stack([policy.select_action(dict(o)) for o in obs])
+    moved = (runs[True] - open_loop).abs().max()
+    assert 1e-2 < moved < 2.0, moved  # a real correction, within the action range

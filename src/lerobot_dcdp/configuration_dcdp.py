@@ -38,6 +38,11 @@ class DCDPConfig(PreTrainedConfig):
             ``object_anchored`` is a training-free reference: the not-yet-executed part of the chunk is
             carried along with the rigid motion of the object seen in ``anchor_feature`` since the chunk
             was planned.
+        inference_delay: Control steps d the base takes to answer (beyond the paper; default 0). A chunk
+            that starts being used at step t was planned from the observation of step t-d (the first one, at
+            t = 0, from step 0), and its entries for the steps already past are skipped, so the base must
+            return n_action_steps + d actions. Every execution mode honours it; ``object_anchored`` and
+            ``dcdp`` measure the change since that observation, which is what they correct.
         te_weight: Weight of the newest prediction in ``temporal_ensemble`` (authors: 0.5).
         correction: How the corrector produces action s of a chunk. ``reconstruct`` is the paper's recipe:
             the GRU decoder re-decodes the action from z and F_{t+s} (trained to reconstruct demonstration
@@ -88,6 +93,7 @@ class DCDPConfig(PreTrainedConfig):
     n_history: int = 5
     n_action_steps: int = 8
     execution: str = "dcdp"
+    inference_delay: int = 0
     te_weight: float = 0.5
     correction: str = "reconstruct"
     anchor_feature: str | None = None
@@ -143,6 +149,8 @@ class DCDPConfig(PreTrainedConfig):
             raise ValueError(f"n_history must be >= 2 (differentials need two frames), got {self.n_history}")
         if self.n_action_steps < 1:
             raise ValueError(f"n_action_steps must be >= 1, got {self.n_action_steps}")
+        if self.inference_delay < 0:
+            raise ValueError(f"inference_delay must be >= 0 control steps, got {self.inference_delay}")
         if self.execution not in EXECUTION_MODES:
             raise ValueError(f"execution must be one of {EXECUTION_MODES}, got {self.execution!r}")
         if self.correction not in CORRECTIONS:

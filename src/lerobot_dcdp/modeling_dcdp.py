@@ -15,6 +15,7 @@ loop, temporal ensemble) are other execution modes of this same loop.
 from __future__ import annotations
 
 import os
+from collections import deque
 from pathlib import Path
 
 import torch
@@ -44,6 +45,7 @@ from lerobot_dcdp.correction import (
     unnormalize,
 )
 from lerobot_dcdp.dynamics import DynamicFeatureExtractor, FrameEncoder, diff_loss
+from lerobot_dcdp.fast_step import ResidualStep, trace_step
 from lerobot_dcdp.residual import ResidualHead, change_input
 
 
@@ -148,6 +150,11 @@ class DCDPPolicy(PreTrainedPolicy):
         self.register_buffer("action_high", high, persistent=False)
         self._frame_keys = list(state_dims) + image_keys
         self._needed_keys = sorted(set(self._frame_keys) | set(base.config.input_features or {}))
+        #: residual: sum the head's fixed inputs once per chunk and run the rest of each step as one traced
+        #: graph (fast_step.py); same actions up to float rounding. False: the plain eager path.
+        self.fast_inference = True
+        self._traces: dict[tuple, object] = {}  # (batch, device, weight versions) -> traced ResidualStep
+        self._traced = None  # the one for the current chunk (not a submodule)
         self.register_buffer("action_half_range", 0.5 * (high - low), persistent=False)
         self.reset()
 
@@ -179,6 +186,12 @@ class DCDPPolicy(PreTrainedPolicy):
                 f"n_action_steps={cfg.n_action_steps} exceeds the base's chunk: "
                 f"base type {bcfg.type!r} returns "
                 f"{self.source.chunk_length} actions per call"
+            )
+        if cfg.n_action_steps + cfg.inference_delay > self.source.max_length:
+            raise ValueError(
+                f"inference_delay={cfg.inference_delay} needs n_action_steps + inference_delay = "
+                f"{cfg.n_action_steps + cfg.inference_delay} actions per chunk, but base type {bcfg.type!r} "
+                f"returns at most {self.source.max_length}"
             )
         if cfg.output_features and bcfg.output_features:
             ours, theirs = cfg.action_feature, bcfg.action_feature
@@ -421,7 +434,11 @@ class DCDPPolicy(PreTrainedPolicy):
         self._z: Tensor | None = None
         self._h: Tensor | None = None
         self._at_plan: Tensor | None = None  # residual: change representation at plan time
+        self._terms: Tensor | None = None  # residual: the head's per-chunk part (ResidualHead.chunk_terms)
+        self._w_step: Tensor | None = None
         self._anchor_plan: Tensor | None = None  # raw anchor keypoints at plan time
+        self._t = 0  # control steps since reset
+        self._past: deque[dict] = deque(maxlen=self.config.inference_delay + 1)  # steps t-d .. t
         self.last_step: int | None = None
 
     def _check_batch(self, batch: dict[str, Tensor]) -> None:
@@ -476,6 +493,10 @@ class DCDPPolicy(PreTrainedPolicy):
     def residual_step(self, feature: Tensor, step: int, batch: dict[str, Tensor]) -> Tensor:
         """``plan_s + delta`` (base-normalised); delta == 0 returns the planned action bit for bit."""
         plan_s = self._chunk[:, step]
+        if self._terms is not None:  # per-chunk terms summed at plan time (chunk_terms)
+            change = self.config.change_scale * (self._rep - self._at_plan)
+            delta = self.residual.step(self._terms[:, step], feature, change, self._w_step)
+            return plan_s + delta * self.action_half_range
         s = torch.full((plan_s.shape[0],), step, dtype=torch.long, device=plan_s.device)
         change = change_input(self._at_plan, self._rep, self.config.change_scale)
         plan_unit = to_unit_range(plan_s, self.action_low, self.action_high)
@@ -485,6 +506,38 @@ class DCDPPolicy(PreTrainedPolicy):
         delta = self.residual(self._z, plan_unit, feature, change, s)
         return plan_s + delta * self.action_half_range
 
+    def _remember(self, prepared: dict[str, Tensor], batch: dict[str, Tensor]) -> None:
+        """Keep what a base answering ``inference_delay`` steps late planned from, step by step."""
+        anchored = self.config.execution == "object_anchored" or self.config.anchor_input
+        self._past.append(
+            {
+                "t": self._t,
+                "prepared": prepared,
+                "queues": self.source.snapshot(),
+                "rep": self._rep,
+                "anchor": self._anchor_points(batch) if anchored else None,
+            }
+        )
+
+    def _plan_chunk(
+        self, prepared: dict[str, Tensor], batch: dict[str, Tensor], length: int | None
+    ) -> Tensor:
+        """The chunk that starts being used now; sets the plan-time references (rep, anchor keypoints).
+
+        With ``inference_delay`` d it was planned from step max(t-d, 0) and the entries for the steps past
+        since then are skipped."""
+        cfg = self.config
+        anchored = cfg.execution == "object_anchored" or (cfg.execution == "dcdp" and cfg.anchor_input)
+        if not cfg.inference_delay:
+            self._at_plan = self._rep
+            self._anchor_plan = self._anchor_points(batch) if anchored else None
+            return self.source.chunk(prepared, length)
+        then = self._past[0]
+        skip = self._t - then["t"]
+        length = min((length or self.source.chunk_length) + skip, self.source.max_length)
+        self._at_plan, self._anchor_plan = then["rep"], then["anchor"]
+        return self.source.chunk_from(then["prepared"], then["queues"], length)[:, skip:]
+
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor]) -> Tensor:
         """One action (B, A) per environment for the current step (normalised; the post-processor maps it)."""
@@ -492,25 +545,32 @@ class DCDPPolicy(PreTrainedPolicy):
         cfg = self.config
         mode, horizon = cfg.execution, cfg.n_action_steps
         prepared = self.source.observe(batch)
+        if mode == "dcdp" and self._step != 0 and self._step_graph is not None:
+            return self._traced_step(batch)
         if mode == "dcdp":
             self._push_frame(batch)
+        if cfg.inference_delay:
+            self._remember(prepared, batch)
         replan = mode in ("closed_loop", "temporal_ensemble") or self._step == 0
         if replan:
-            chunk = self.source.chunk(prepared)
             if mode == "temporal_ensemble":
+                chunk = self._plan_chunk(prepared, batch, None)
                 self._plan = temporal_ensemble_step(self._plan, chunk, cfg.te_weight)
             elif mode == "closed_loop":
-                self._plan = chunk
+                self._plan = self._plan_chunk(prepared, batch, 1)
             else:
-                self._chunk = chunk[:, :horizon]
-                if mode == "object_anchored" or (mode == "dcdp" and cfg.anchor_input):
-                    self._anchor_plan = self._anchor_points(batch)
+                self._chunk = self._plan_chunk(prepared, batch, horizon)
                 if mode == "dcdp":
                     self._z = self.encode_chunk(self._chunk)
-                    if cfg.correction == "residual":
-                        self._at_plan = self._rep
-                    else:
+                    if cfg.correction != "residual":
                         self._h = self.decoder.initial_state(self._z)
+                    elif self.fast_inference and not cfg.anchor_input:
+                        unit = to_unit_range(self._chunk, self.action_low, self.action_high)
+                        self._terms, self._w_step = self.residual.chunk_terms(self._z, unit, self._at_plan)
+                        self._prepare_trace()
+                    else:
+                        self._terms = None
+        self._t += 1
         if mode in ("closed_loop", "temporal_ensemble"):
             self.last_step = 0
             return self._plan[:, 0]
@@ -526,6 +586,62 @@ class DCDPPolicy(PreTrainedPolicy):
             return self.residual_step(feature, step, batch)
         return self.decode_step(feature, step)
 
+    # ------------------------------------------------------------------ traced per-step path (fast_step.py)
+    @property
+    def _step_graph(self):
+        """The traced per-step path for the current chunk, or None (eager path)."""
+        return self._traced if self._terms is not None else None
+
+    def _prepare_trace(self) -> None:
+        """(Re)trace the per-step path when the weights, batch size or device changed since the last trace;
+        only for a vector-input residual corrector without anchor input or inference delay, in eval mode."""
+        fe = self.frame_encoder
+        if (
+            self.training
+            or fe.image is not None
+            or fe.state is None
+            or self.config.inference_delay
+            or self._rep is None
+            or self._bank is None
+        ):
+            self._traced = None
+            return
+        versions = tuple(t._version for t in (*self.parameters(), *self.buffers()))
+        key = (self._bank.shape[0], str(self._bank.device), versions)
+        if key in self._traces:
+            self._traced = self._traces[key]
+            return
+        self._traces = {k: v for k, v in self._traces.items() if k[2] == versions}  # weights changed: drop
+        x = fe.state_shift + fe.state_scale * self._rep  # a frame's raw vector (the example's values)
+        example = (
+            x,
+            self._bank,
+            self._at_plan,
+            self._terms[:, 0],
+            self._w_step,
+            self._chunk[:, 0],
+            self.action_half_range,
+        )
+        step = ResidualStep(fe, self.extractor, self.residual, self.config.change_scale)
+        self._traced = self._traces[key] = trace_step(step, example)
+
+    def _traced_step(self, batch: dict[str, Tensor]) -> Tensor:
+        step = self._step
+        self.last_step = step
+        self._step = (self._step + 1) % self.config.n_action_steps
+        self._t += 1
+        x = torch.cat([batch[k] for k in self.frame_encoder.state_keys], dim=-1)
+        action, self._bank, self._rep = self._step_graph(
+            x,
+            self._bank,
+            self._at_plan,
+            self._terms[:, step],
+            self._w_step,
+            self._chunk[:, step],
+            self.action_half_range,
+        )
+        return action
+
     _STATE = (
         "_bank",
         "_rep",
@@ -535,7 +651,11 @@ class DCDPPolicy(PreTrainedPolicy):
         "_z",
         "_h",
         "_at_plan",
+        "_terms",
+        "_w_step",
         "_anchor_plan",
+        "_t",
+        "_past",
         "last_step",
     )
 

@@ -1,9 +1,12 @@
-"""Processors of a DCDP policy: exactly the base's own saved pipelines.
+"""Processors of a DCDP policy: the base's own saved pipelines, plus one step in front.
 
 Wrapper and base must see identical normalised inputs, so the corrector never builds a normaliser from
 the training dataset: it loads the base's ``policy_preprocessor.json`` / ``policy_postprocessor.json``
 (with the base's statistics and LeRobot's standard step names) and only moves the device step to
-``config.device``.
+``config.device``. In front of the pre-processor it puts ``dcdp_split_state``
+(:class:`~lerobot_dcdp.processor_split_state.SplitStateProcessorStep`), which lets stock
+``lerobot-rollout`` feed the policy from a robot that flattens its state and the environment state into
+one ``observation.state``; it changes nothing for observations that carry the keys separately.
 """
 
 from __future__ import annotations
@@ -12,7 +15,7 @@ import logging
 from typing import Any
 
 import torch
-from lerobot.processor import PolicyAction, PolicyProcessorPipeline
+from lerobot.processor import DeviceProcessorStep, PolicyAction, PolicyProcessorPipeline
 from lerobot.processor.converters import (
     batch_to_transition,
     policy_action_to_transition,
@@ -22,6 +25,7 @@ from lerobot.processor.converters import (
 
 from lerobot_dcdp.base_policy import resolve_base_reference
 from lerobot_dcdp.configuration_dcdp import DCDPConfig
+from lerobot_dcdp.processor_split_state import SplitStateProcessorStep
 
 
 def make_dcdp_pre_post_processors(
@@ -31,7 +35,12 @@ def make_dcdp_pre_post_processors(
     PolicyProcessorPipeline[dict[str, Any], dict[str, Any]],
     PolicyProcessorPipeline[PolicyAction, PolicyAction],
 ]:
-    """The base policy's pre/post-processors (its statistics win over ``dataset_stats``)."""
+    """The base policy's pre/post-processors (its statistics win over ``dataset_stats``).
+
+    The pre-processor starts with :class:`SplitStateProcessorStep` for ``config.input_features`` when the
+    policy has ``observation.state`` and another vector input (a split step the base already has is
+    replaced).
+    """
     if dataset_stats is not None:
         logging.info("dcdp: normalising with the base policy's statistics, not the dataset's")
     path = resolve_base_reference(config.base_policy_path, config.pretrained_path)
@@ -44,10 +53,16 @@ def make_dcdp_pre_post_processors(
         to_transition=policy_action_to_transition,
         to_output=transition_to_policy_action,
     )
-    from lerobot.processor import DeviceProcessorStep
-
     for step in pre.steps:
         if isinstance(step, DeviceProcessorStep) and config.device:
             step.device = config.device
             step.__post_init__()
+    split = SplitStateProcessorStep.from_features(config.input_features)
+    if split is not None:
+        pre = PolicyProcessorPipeline(
+            steps=[split, *(s for s in pre.steps if not isinstance(s, SplitStateProcessorStep))],
+            name=pre.name,
+            to_transition=batch_to_transition,
+            to_output=transition_to_batch,
+        )
     return pre, post

@@ -4,8 +4,8 @@ The loop is ``lerobot-eval``'s (pre-processor -> ``select_action`` -> post-proce
 batch 1 and batch 50, one thread, static PushT, modes interleaved episode by episode so they share the
 same machine state. Per mode: mean and p95 per control step over whole episodes (a base call every H
 steps included). Then the corrector's own per-step time, split by part (frame encoding + bank update,
-dynamic extractor, correction head), each part timed by calling the policy's own methods on real
-observations.
+dynamic extractor, correction head, or the traced step that replaces them, and the once-per-chunk work),
+each part timed by calling the policy's own methods on real observations.
 Prints Markdown tables and writes JSON.
 """
 
@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+
+from lerobot_dcdp.correction import to_unit_range
 
 MODES = ("open_loop", "dcdp", "object_anchored", "closed_loop")
 
@@ -42,7 +44,10 @@ def time_modes(policy, pre, post, modes, episodes: int, steps: int, batch: int, 
 
 @torch.no_grad()
 def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str, float]:
-    """Mean ms per control step of each part of the DCDP per-step path (batch 1)."""
+    """Mean ms per control step of each part of the DCDP per-step path (batch 1): the eager parts (frame
+    encoding + bank update, dynamic extractor, correction head; ``fast_inference = False``), the traced step
+    that replaces them (``fast_step.py``, when the corrector has one) and the once-per-chunk work (chunk
+    latent, head terms, trace check) divided by H."""
     from lerobot_dcdp.benchmark.rollout import _stack_obs
     from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
 
@@ -52,28 +57,55 @@ def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str
 
     batch = pre(preprocess_observation(_stack_obs([obs])))
     env.close()
-    policy.config.execution = "dcdp"
-    policy.reset()
-    policy.select_action(dict(batch))  # plans a chunk: z, plan-time state
     cfg = policy.config
+    cfg.execution = "dcdp"
     parts: dict[str, list[float]] = {"frame encoding + bank": [], "extractor": [], "head": []}
-    for i in range(warmup + steps):
-        step = 1 + i % (cfg.n_action_steps - 1)
+    for fast in (False, True):
+        policy.fast_inference = fast
+        policy.reset()
+        policy.select_action(dict(batch))  # plans a chunk: z, plan-time state (and the trace)
+        if fast and policy._step_graph is not None:
+            parts["whole step, traced"] = []
+        for i in range(warmup + steps):
+            step = 1 + i % (cfg.n_action_steps - 1)
+            if fast:
+                if policy._step_graph is None:
+                    break
+                policy._step = step
+                t0 = time.perf_counter()
+                policy._traced_step(batch)
+                if i >= warmup:
+                    parts["whole step, traced"].append((time.perf_counter() - t0) * 1e3)
+                continue
+            t0 = time.perf_counter()
+            policy._push_frame(batch)
+            t1 = time.perf_counter()
+            feature, _ = policy.extractor(policy._bank)
+            t2 = time.perf_counter()
+            if cfg.correction == "residual":
+                policy.residual_step(feature, step, batch)
+            else:
+                policy.decode_step(feature, step)
+            t3 = time.perf_counter()
+            if i >= warmup:
+                parts["frame encoding + bank"].append((t1 - t0) * 1e3)
+                parts["extractor"].append((t2 - t1) * 1e3)
+                parts["head"].append((t3 - t2) * 1e3)
+    chunk = policy.planned_chunk
+    per_chunk = []
+    for i in range(warmup + steps // 4):
         t0 = time.perf_counter()
-        policy._push_frame(batch)
-        t1 = time.perf_counter()
-        feature, _ = policy.extractor(policy._bank)
-        t2 = time.perf_counter()
-        if cfg.correction == "residual":
-            policy.residual_step(feature, step, batch)
-        else:
-            policy.decode_step(feature, step)
-        t3 = time.perf_counter()
+        policy._z = policy.encode_chunk(chunk)
+        if policy._terms is not None:
+            unit = to_unit_range(chunk, policy.action_low, policy.action_high)
+            policy._terms, policy._w_step = policy.residual.chunk_terms(policy._z, unit, policy._at_plan)
+            policy._prepare_trace()
         if i >= warmup:
-            parts["frame encoding + bank"].append((t1 - t0) * 1e3)
-            parts["extractor"].append((t2 - t1) * 1e3)
-            parts["head"].append((t3 - t2) * 1e3)
-    return {k: float(np.mean(v)) for k, v in parts.items()}
+            per_chunk.append((time.perf_counter() - t0) * 1e3 / cfg.n_action_steps)
+    policy.fast_inference = True
+    out = {k: float(np.mean(v)) for k, v in parts.items() if v}
+    out["per-chunk work / H"] = float(np.mean(per_chunk))
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:

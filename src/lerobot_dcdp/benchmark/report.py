@@ -113,6 +113,81 @@ def gaps(results: dict, label: str) -> str:
     return "\n".join(out)
 
 
+def _delays(cells: dict, label: str) -> list[int]:
+    return sorted({c.get("inference_delay", 0) for c in cells.values() if c["model"] == label})
+
+
+def _cell(cells: dict, label: str, method: str, condition: str, delay: int) -> dict | None:
+    return cells.get(f"{label}|{method}|{condition}" + (f"|d{delay}" if delay else ""))
+
+
+def table_delay(results: dict, label: str) -> str:
+    """Score ± s.e. (success) per method and condition for each inference delay d, and the score each
+    method loses from d = 0 to the largest d."""
+    cells = results["cells"]
+    delays = _delays(cells, label)
+    if len(delays) < 2:
+        return ""
+    conds = [c for c in _conditions(cells, label) if _cell(cells, label, "open_loop", c, delays[-1])]
+    head = ["method", "condition"] + [f"d = {d}" for d in delays] + [f"lost d=0 -> {delays[-1]}"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for m, name in METHOD_NAMES.items():
+        for c in conds:
+            row = [_cell(cells, label, m, c, d) for d in delays]
+            if all(r is None for r in row[1:]):
+                continue
+            lost = f"{row[0]['score'] - row[-1]['score']:+.3f}" if row[0] and row[-1] else "-"
+            lines.append(f"| {name} | {c} | " + " | ".join(fmt(r) for r in row) + f" | {lost} |")
+    return "\n".join(lines)
+
+
+def plot_delay(results: dict, path: Path) -> bool:
+    """Score (± s.e.) vs inference delay per method, one panel per condition and model; False when no
+    delayed cell exists."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cells = results["cells"]
+    labels = sorted({c["model"] for c in cells.values() if c.get("inference_delay", 0)})
+    if not labels:
+        return False
+    panels = [
+        (label, c)
+        for label in labels
+        for c in _conditions(cells, label)
+        if any(_cell(cells, label, m, c, d) for m in METHOD_NAMES for d in _delays(cells, label) if d)
+    ]
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.3 * len(panels), 3.4), squeeze=False)
+    for ax, (label, c) in zip(axes[0], panels, strict=True):
+        for m, name in METHOD_NAMES.items():
+            pts = [(d, _cell(cells, label, m, c, d)) for d in _delays(cells, label)]
+            pts = [(d, cell) for d, cell in pts if cell]
+            if len(pts) < 2:
+                continue
+            ax.errorbar(
+                [d for d, _ in pts],
+                [cell["score"] for _, cell in pts],
+                yerr=[score_se(cell) for _, cell in pts],
+                marker="o",
+                capsize=3,
+                label=name,
+                color=COLORS[m],
+            )
+        ax.set_title(f"{label}: {c}", fontsize=9)
+        ax.set_xlabel("inference delay d (control steps)")
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("score (avg max reward)")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
 def plot(results: dict, path: Path) -> None:
     """Score (± standard error) vs drift magnitude, per method, for constant and random drift."""
     import matplotlib
@@ -175,6 +250,8 @@ def protocol(results: dict) -> str:
 def write_report(results: dict, report: Path, json_path: Path) -> None:
     plot_path = json_path.parent / "score_vs_drift.png"
     plot(results, plot_path)
+    delay_path = json_path.parent / "score_vs_delay.png"
+    has_delay = plot_delay(results, delay_path)
     m = results.get("machine", {})
     parts = [
         "# Results: DCDP on perturbed PushT",
@@ -214,6 +291,19 @@ def write_report(results: dict, report: Path, json_path: Path) -> None:
             gaps(results, label) or "(not enough cells)",
             "",
         ]
+        delayed = table_delay(results, label)
+        if delayed:
+            parts += [
+                "### Table 3: a base that answers late (`--policy.inference_delay=d`)",
+                "",
+                "The chunk used from step t was planned from the observation of step t-d; the entries for "
+                "the steps already past are skipped. Score ± s.e. (success rate ± s.e.).",
+                "",
+                delayed,
+                "",
+            ]
     parts += [f"![score vs drift]({Path('..') / plot_path})", ""]
+    if has_delay:
+        parts += [f"![score vs delay]({Path('..') / delay_path})", ""]
     report.parent.mkdir(parents=True, exist_ok=True)
     report.write_text("\n".join(parts))

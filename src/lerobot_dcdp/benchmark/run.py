@@ -3,7 +3,8 @@
 For each corrector given with ``--model LABEL=DIR`` (default: the shipped diffusion, paper-recipe and ACT
 correctors) the base it records is run as ``open_loop`` (H = 8), ``closed_loop`` (H = 1),
 ``temporal_ensemble`` (H = 1, 0.5), ``object_anchored`` (H = 8, when the corrector names an anchor feature)
-and ``dcdp`` (H = 8) on static PushT and under constant / random block drift of 0.5 to 2.5 px per step.
+and ``dcdp`` (H = 8) on static PushT and under constant / random block drift of 0.5 to 2.5 px per step;
+``--delays 0 2 4`` adds a base that answers d control steps late (``inference_delay``).
 Seeds 100000.., 300 steps max, an episode ends on success (coverage > 0.95). Writes ``results/benchmark.json``
 (finished cells are kept and not recomputed), the per-step latency at batch 1, a plot, side-by-side videos
 and ``docs/RESULTS.md``.
@@ -84,9 +85,18 @@ def load_model(corrector_dir: str):
     return policy, pre, post, identity
 
 
-def set_mode(policy, method: str) -> None:
+def set_mode(policy, method: str, delay: int = 0) -> None:
+    limit = policy.source.max_length - policy.config.n_action_steps
+    if not 0 <= delay <= limit:
+        raise ValueError(f"inference_delay {delay} is out of range for this base: 0..{limit}")
     policy.config.execution = method
+    policy.config.inference_delay = delay
     policy.reset()
+
+
+def cell_key(label: str, method: str, condition: str, delay: int = 0) -> str:
+    """A cell's key in the JSON (a delayed base's cells get a ``|d<delay>`` suffix)."""
+    return f"{label}|{method}|{condition}" + (f"|d{delay}" if delay else "")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -106,6 +116,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
     p.add_argument(
         "--conditions", nargs="+", default=[c.name for c in CONDITIONS], choices=[c.name for c in CONDITIONS]
+    )
+    p.add_argument(
+        "--delays", nargs="+", type=int, default=[0], help="inference delays d (control steps) to run"
     )
     p.add_argument("--episodes", type=int, default=50)
     p.add_argument("--seed-start", type=int, default=100_000)
@@ -163,15 +176,21 @@ def main(argv: list[str] | None = None) -> None:
             and (m != "object_anchored" or policy.config.anchor_feature)
         ]
         todo = [
-            (m, c)
+            (m, c, d)
+            for d in a.delays
             for c in a.conditions
             for m in methods
-            if a.force or not _fresh(results["cells"].get(f"{label}|{m}|{c}"), ident, seeds, a.max_steps)
+            if a.force
+            or not _fresh(results["cells"].get(cell_key(label, m, c, d)), ident, seeds, a.max_steps)
         ]
         bar = tqdm(total=len(todo) * a.max_steps, desc=f"{label}: rollouts", unit="step")
-        for method, cname in todo:
-            render = tuple(seeds[: a.videos]) if method in ("open_loop", "dcdp") and cname != "static" else ()
-            set_mode(policy, method)
+        for method, cname, delay in todo:
+            render = (
+                tuple(seeds[: a.videos])
+                if method in ("open_loop", "dcdp") and cname != "static" and not delay
+                else ()
+            )
+            set_mode(policy, method, delay)
             t0 = time.perf_counter()
             res = []
             for i in range(0, len(seeds), a.batch_size):
@@ -191,6 +210,7 @@ def main(argv: list[str] | None = None) -> None:
                 "model": label,
                 "method": method,
                 "condition": cname,
+                "inference_delay": delay,
                 **conds[cname].env_kwargs(),
                 "episodes": len(seeds),
                 "seeds": [seeds[0], seeds[-1]],
@@ -204,7 +224,7 @@ def main(argv: list[str] | None = None) -> None:
                 "wall_s": round(time.perf_counter() - t0, 1),
                 "identity": ident,
             }
-            results["cells"][f"{label}|{method}|{cname}"] = cell
+            results["cells"][cell_key(label, method, cname, delay)] = cell
             frames = {s: f for r in res for s, f in r.frames.items()}
             if frames:
                 _stash_frames(video_dir, label, method, cname, frames)

@@ -1,0 +1,195 @@
+"""The ``pusht_sim`` robot: LeRobot's robot contract, the drift, real-time stepping, and stock
+``lerobot-rollout`` sessions on it."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from lerobot.robots import RobotConfig, make_robot_from_config
+from lerobot.utils.errors import DeviceAlreadyConnectedError, DeviceNotConnectedError
+
+import lerobot_policy_dcdp  # noqa: F401  (registers the plugin's types, as LeRobot's discovery does)
+from lerobot_dcdp.robots import PushTSim, PushTSimConfig
+from lerobot_dcdp.robots.pusht_sim import AGENT_NAMES, KEYPOINT_NAMES
+
+REPO = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
+
+
+def make(tmp_path: Path, **kwargs) -> PushTSim:
+    return PushTSim(PushTSimConfig(calibration_dir=tmp_path / "calib", **kwargs))
+
+
+def test_registered_for_lerobot(tmp_path: Path) -> None:
+    assert RobotConfig.get_choice_class("pusht_sim") is PushTSimConfig
+    robot = make_robot_from_config(PushTSimConfig(calibration_dir=tmp_path))
+    assert isinstance(robot, PushTSim) and robot.name == robot.robot_type == "pusht_sim"
+
+
+def test_robot_contract(tmp_path: Path) -> None:
+    robot = make(tmp_path)
+    # features are known before connecting, and are what the PushT datasets hold
+    assert list(robot.observation_features) == [*AGENT_NAMES, *KEYPOINT_NAMES]
+    assert len(KEYPOINT_NAMES) == 16 and set(robot.observation_features.values()) == {float}
+    assert robot.action_features == {"x.pos": float, "y.pos": float}
+    assert robot.is_calibrated and not robot.is_connected
+    for call in (
+        robot.get_observation,
+        lambda: robot.send_action({"x.pos": 1, "y.pos": 1}),
+        robot.disconnect,
+    ):
+        with pytest.raises(DeviceNotConnectedError):
+            call()
+
+    with robot:
+        assert robot.is_connected
+        with pytest.raises(DeviceAlreadyConnectedError):
+            robot.connect()
+        obs = robot.get_observation()
+        assert list(obs) == list(robot.observation_features)
+        assert all(isinstance(v, float) and 0 <= v <= 512 for v in obs.values())
+        sent = robot.send_action({"x.pos": 600.0, "y.pos": -5.0, "kp0_x.pos": 1.0})  # extra keys ignored
+        assert sent == {"x.pos": 512.0, "y.pos": 0.0}  # clipped to the arena
+        assert robot.actions_sent == robot.sim_steps == 1
+    assert not robot.is_connected
+
+
+@pytest.mark.parametrize(
+    ("action", "message"),
+    [({"x.pos": 1.0}, "missing \\['y.pos'\\]"), ({"x.pos": float("nan"), "y.pos": 1}, "finite")],
+)
+def test_bad_action_is_refused(tmp_path: Path, action: dict, message: str) -> None:
+    with make(tmp_path) as robot, pytest.raises(ValueError, match=message):
+        robot.send_action(action)
+
+
+def test_bad_config_is_refused() -> None:
+    with pytest.raises(ValueError, match="perturbation must be one of"):
+        PushTSimConfig(perturbation="sideways")
+    with pytest.raises(ValueError, match="magnitude"):
+        PushTSimConfig(magnitude=-1.0)
+    with pytest.raises(ValueError, match="seed"):
+        PushTSimConfig(seed="zero")
+
+
+def test_lockstep_drift_moves_the_block(tmp_path: Path) -> None:
+    """Lock-step: one control step per action; a constant drift away from the agent moves the block by
+    exactly ``magnitude`` px per step (seed 0: the agent starts to the right of the block)."""
+    with make(tmp_path, perturbation="constant", magnitude=2.0, direction_deg=180.0, realtime=False) as robot:
+        x0, y0, _ = robot.block_pose
+        obs = robot.get_observation()
+        hold = {k: obs[k] for k in AGENT_NAMES}
+        for _ in range(5):
+            robot.send_action(hold)
+        x1, y1, _ = robot.block_pose
+        assert robot.sim_steps == 5
+        assert (x1 - x0, y1 - y0) == pytest.approx((-10.0, 0.0), abs=1e-6)
+        kp = np.array([robot.get_observation()[k] for k in KEYPOINT_NAMES]).reshape(8, 2)
+        kp0 = np.array([obs[k] for k in KEYPOINT_NAMES]).reshape(8, 2)
+        assert kp - kp0 == pytest.approx(np.tile([-10.0, 0.0], (8, 1)), abs=1e-6)
+
+
+def test_realtime_world_runs_on_while_the_controller_is_late(tmp_path: Path) -> None:
+    with make(tmp_path, realtime=True) as robot:
+        hold = {k: robot.get_observation()[k] for k in AGENT_NAMES}
+        robot.send_action(hold)  # first action: one step, starts the clock
+        assert (robot.sim_steps, robot.late_actions) == (1, 0)
+        time.sleep(0.32)  # 3.2 control steps late
+        robot.send_action(hold)
+        assert robot.late_actions == 1 and robot.sim_steps in (4, 5)
+        assert robot.held_steps == robot.sim_steps - 2  # all but the new action's own step
+        steps = robot.sim_steps
+        robot.send_action(hold)  # right away: no step due (at most one under a heavy load)
+        assert robot.sim_steps - steps <= 1
+        assert robot.superseded_actions == 1 - (robot.sim_steps - steps)
+
+
+@pytest.mark.slow
+def test_rollout_records_the_shipped_corrector(tmp_path: Path) -> None:
+    """A real session of stock ``lerobot-rollout``: LeRobot's episodic strategy drives the shipped DCDP
+    corrector on the drifting sim (lock-step, 5 Hz, 2 s) and records it, one frame per action. LeRobot
+    records the robot's 18 scalar features as one ``observation.state`` (agent xy, then the keypoints);
+    the corrector's own pre-processor splits such a frame into its two inputs."""
+    fps, seconds, root = 5, 2, tmp_path / "rec"
+    corrector = REPO / "models" / "pusht-dcdp-state"
+    args = [
+        str(BIN / "lerobot-rollout"),
+        *("--robot.type=pusht_sim", "--robot.perturbation=constant", "--robot.magnitude=2.0"),
+        "--robot.realtime=false",
+        f"--robot.calibration_dir={tmp_path / 'calib'}",
+        f"--policy.path={corrector}",
+        "--policy.execution=dcdp",
+        f"--fps={fps}",
+        "--strategy.type=episodic",
+        "--dataset.repo_id=local/rollout_pusht",
+        f"--dataset.root={root}",
+        f"--dataset.fps={fps}",
+        "--dataset.num_episodes=1",
+        f"--dataset.episode_time_s={seconds}",
+        "--dataset.single_task=Push the T onto the target",
+        "--dataset.push_to_hub=false",
+        "--return_to_initial_position=false",
+        "--play_sounds=false",
+    ]
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=300, env=ENV, cwd=tmp_path)
+    log = proc.stdout + proc.stderr
+    assert proc.returncode == 0, log[-4000:]
+    sent = int(re.search(r"PushTSim disconnected: actions=(\d+)", log).group(1))
+
+    info = json.loads((root / "meta" / "info.json").read_text())
+    feats = info["features"]
+    assert (info["fps"], info["robot_type"], info["total_episodes"]) == (fps, "pusht_sim", 1)
+    assert feats["observation.state"]["names"] == [*AGENT_NAMES, *KEYPOINT_NAMES]
+    assert feats["action"]["names"] == list(AGENT_NAMES)
+    assert info["total_frames"] == sent and fps * seconds - 2 <= sent <= fps * seconds
+
+    import torch
+    from lerobot.datasets import LeRobotDataset
+    from lerobot.processor import PolicyProcessorPipeline
+
+    ds = LeRobotDataset("local/rollout_pusht", root=root)
+    state = torch.stack([ds[i]["observation.state"] for i in range(len(ds))])
+    actions = torch.stack([ds[i]["action"] for i in range(len(ds))])
+    assert (state[-1, 2:] - state[0, 2:]).abs().max() > 1.0  # the block moved (drift and/or pushing)
+    assert ((actions >= 0) & (actions <= 512)).all()
+    # what the corrector's pre-processor makes of the recorded frames: its two inputs, normalised
+    pre = PolicyProcessorPipeline.from_pretrained(corrector, "policy_preprocessor.json")
+    flat = pre({"observation.state": state})
+    split = pre({"observation.state": state[:, :2], "observation.environment_state": state[:, 2:]})
+    for key in ("observation.state", "observation.environment_state"):
+        assert torch.equal(flat[key], split[key])
+
+
+@pytest.mark.slow
+def test_rollout_deadlines_script(tmp_path: Path) -> None:
+    """scripts/rollout_deadlines.sh runs a 2 s real-time rollout and tabulates LeRobot's deadline warnings."""
+    out = tmp_path / "deadlines"
+    env = {**ENV, "LEROBOT_ROLLOUT": str(BIN / "lerobot-rollout"), "MODES": "open_loop", "DURATION": "2"}
+    env |= {"FPS": "10", "OUT": str(out)}
+    proc = subprocess.run(
+        ["bash", "scripts/rollout_deadlines.sh"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+        cwd=REPO,
+    )
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    row = next(
+        line for line in (out / "summary.md").read_text().splitlines() if line.startswith("| open_loop")
+    )
+    _, mode, ticks, misses, pct, _slowest, held, superseded, coverage, _ = (c.strip() for c in row.split("|"))
+    log = (out / "open_loop.log").read_text()
+    # at most fps * duration (+1) ticks; how many ran depends on the machine's load, not on the script
+    assert int(misses) == log.count("Record loop is running slower") <= int(ticks) <= 21
+    assert int(ticks) >= 1 and int(held) >= 0 and int(superseded) >= 0 and 0.0 <= float(coverage) <= 1.0
+    assert float(pct) == pytest.approx(100 * int(misses) / int(ticks), abs=0.05)
