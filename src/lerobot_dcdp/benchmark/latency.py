@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -124,7 +125,7 @@ def main(argv: list[str] | None = None) -> None:
     policy, pre, post, ident = load_model(a.corrector)
     modes = [m for m in a.modes if m != "object_anchored" or policy.config.anchor_feature]
     res = {
-        "command": "dcdp-latency " + " ".join(argv if argv is not None else []),
+        "command": "dcdp-latency " + " ".join(argv if argv is not None else sys.argv[1:]),
         "identity": ident,
         "machine": machine(),
         "git_commit": git_commit(),
