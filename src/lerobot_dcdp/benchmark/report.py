@@ -117,8 +117,26 @@ def _delays(cells: dict, label: str) -> list[int]:
     return sorted({c.get("inference_delay", 0) for c in cells.values() if c["model"] == label})
 
 
+def cell_key(label: str, method: str, condition: str, delay: int = 0) -> str:
+    """A cell's key in the benchmark JSON (a delayed base's cells get a ``|d<delay>`` suffix)."""
+    return f"{label}|{method}|{condition}" + (f"|d{delay}" if delay else "")
+
+
 def _cell(cells: dict, label: str, method: str, condition: str, delay: int) -> dict | None:
-    return cells.get(f"{label}|{method}|{condition}" + (f"|d{delay}" if delay else ""))
+    return cells.get(cell_key(label, method, condition, delay))
+
+
+def _score_line(ax, pts: list[tuple[float, dict]], method: str) -> None:
+    """One method's score ± s.e. over (x, cell) points."""
+    ax.errorbar(
+        [x for x, _ in pts],
+        [cell["score"] for _, cell in pts],
+        yerr=[score_se(cell) for _, cell in pts],
+        marker="o",
+        capsize=3,
+        label=METHOD_NAMES[method],
+        color=COLORS[method],
+    )
 
 
 def table_delay(results: dict, label: str) -> str:
@@ -161,20 +179,11 @@ def plot_delay(results: dict, path: Path) -> bool:
     ]
     fig, axes = plt.subplots(1, len(panels), figsize=(3.3 * len(panels), 3.4), squeeze=False)
     for ax, (label, c) in zip(axes[0], panels, strict=True):
-        for m, name in METHOD_NAMES.items():
+        for m in METHOD_NAMES:
             pts = [(d, _cell(cells, label, m, c, d)) for d in _delays(cells, label)]
             pts = [(d, cell) for d, cell in pts if cell]
-            if len(pts) < 2:
-                continue
-            ax.errorbar(
-                [d for d, _ in pts],
-                [cell["score"] for _, cell in pts],
-                yerr=[score_se(cell) for _, cell in pts],
-                marker="o",
-                capsize=3,
-                label=name,
-                color=COLORS[m],
-            )
+            if len(pts) >= 2:
+                _score_line(ax, pts, m)
         ax.set_title(f"{label}: {c}", fontsize=9)
         ax.set_xlabel("inference delay d (control steps)")
         ax.set_ylim(0, 1.02)
@@ -201,20 +210,11 @@ def plot(results: dict, path: Path) -> None:
         for col, kind in enumerate(KINDS):
             ax = axes[row][col]
             conds = [("static", 0.0)] + [(f"{kind}_{m}", m) for m in MAGNITUDES]
-            for m, name in METHOD_NAMES.items():
-                pts = [(x, results["cells"].get(f"{label}|{m}|{c}")) for c, x in conds]
+            for m in METHOD_NAMES:
+                pts = [(x, results["cells"].get(cell_key(label, m, c))) for c, x in conds]
                 pts = [(x, cell) for x, cell in pts if cell]
-                if not pts:
-                    continue
-                ax.errorbar(
-                    [x for x, _ in pts],
-                    [cell["score"] for _, cell in pts],
-                    yerr=[score_se(cell) for _, cell in pts],
-                    marker="o",
-                    capsize=3,
-                    label=name,
-                    color=COLORS[m],
-                )
+                if pts:
+                    _score_line(ax, pts, m)
             ax.set_title(f"{label}, {kind} drift")
             ax.set_xlabel("block drift (px / control step)")
             ax.set_ylabel("score (avg max reward)")

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lerobot_dcdp.benchmark.report import cell_key
+
 METHODS = ["open_loop", "closed_loop", "temporal_ensemble", "object_anchored", "dcdp"]
 DEFAULT_MODELS = {
     "diffusion": "models/pusht-dcdp-state",
@@ -92,11 +94,6 @@ def set_mode(policy, method: str, delay: int = 0) -> None:
     policy.config.execution = method
     policy.config.inference_delay = delay
     policy.reset()
-
-
-def cell_key(label: str, method: str, condition: str, delay: int = 0) -> str:
-    """A cell's key in the JSON (a delayed base's cells get a ``|d<delay>`` suffix)."""
-    return f"{label}|{method}|{condition}" + (f"|d{delay}" if delay else "")
 
 
 def main(argv: list[str] | None = None) -> None:
