@@ -193,3 +193,49 @@ def test_rollout_deadlines_script(tmp_path: Path) -> None:
     assert int(misses) == log.count("Record loop is running slower") <= int(ticks) <= 21
     assert int(ticks) >= 1 and int(held) >= 0 and int(superseded) >= 0 and 0.0 <= float(coverage) <= 1.0
     assert float(pct) == pytest.approx(100 * int(misses) / int(ticks), abs=0.05)
+
+
+def _fake_rollout(tmp_path: Path, log_lines: list[str]) -> Path:
+    """A stand-in for lerobot-rollout that prints fixed log lines (the script only reads its log)."""
+    fake = tmp_path / "fake-rollout"
+    body = "\n".join(f"echo {json.dumps(line)}" for line in log_lines)
+    fake.write_text(f"#!/usr/bin/env bash\n{body}\n")
+    fake.chmod(0o755)
+    return fake
+
+
+def _run_deadlines(env: dict[str, str]) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        ["bash", "scripts/rollout_deadlines.sh"], capture_output=True, text=True, env=env, cwd=REPO
+    )
+
+
+SUMMARY = (
+    "INFO pusht_sim.py:131 PushTSim disconnected: actions=20 sim_steps=21 late_actions=0 held_steps=1 "
+    "superseded_actions=0 max_coverage=0.412 success=False"
+)
+SLOW = "WARNING base.py:99 Record loop is running slower ({hz} Hz) than the target FPS (10 Hz)."
+
+
+@pytest.mark.parametrize(
+    ("warnings", "misses", "slowest_ms"),
+    [([], 0, "-"), ([SLOW.format(hz="8.1"), SLOW.format(hz="4.0")], 2, "250")],
+)
+def test_rollout_deadlines_parsing(tmp_path: Path, warnings: list[str], misses: int, slowest_ms: str) -> None:
+    """The row counts LeRobot's slow-loop warnings (none is a valid outcome) and reads the robot's line."""
+    out = tmp_path / "out"
+    env = {**ENV, "LEROBOT_ROLLOUT": str(_fake_rollout(tmp_path, [*warnings, SUMMARY])), "MODES": "dcdp"}
+    proc = _run_deadlines(env | {"OUT": str(out)})
+    assert proc.returncode == 0, proc.stderr
+    row = next(line for line in proc.stdout.splitlines() if line.startswith("| dcdp"))
+    cells = [c.strip() for c in row.split("|")[1:-1]]
+    assert cells == ["dcdp", "20", str(misses), f"{100 * misses / 20:.1f}", slowest_ms, "1", "0", "0.412"]
+
+
+def test_rollout_deadlines_needs_robot_summary(tmp_path: Path) -> None:
+    """A log without the robot's disconnect line is an error naming the log, not a half-written row."""
+    out = tmp_path / "out"
+    env = {**ENV, "LEROBOT_ROLLOUT": str(_fake_rollout(tmp_path, ["nothing useful"])), "MODES": "dcdp"}
+    proc = _run_deadlines(env | {"OUT": str(out)})
+    assert proc.returncode == 1 and "PushTSim disconnected" in proc.stderr and "dcdp.log" in proc.stderr
+    assert "| dcdp" not in (out / "summary.md").read_text()
