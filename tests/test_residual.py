@@ -96,6 +96,48 @@ def test_anchored_labels_follow_the_block_with_lookahead() -> None:
         anchored_labels(plans, np.array([1, 2, 3, 4]), kps, 0)
 
 
+def test_drift_offset_labels_add_only_the_applied_drift() -> None:
+    from lerobot_dcdp.pusht.corrections import drift_offset_labels
+
+    plans = np.repeat(np.arange(8 * 2, dtype=np.float32).reshape(1, 8, 2), 5, axis=0)
+    steps = np.array([0, 1, 2, 0, 1])  # the fourth frame starts a new chunk
+    offsets = np.array([[1.0, 0.0], [0.0, 2.0], [3.0, 0.0], [0.0, 0.0], [5.0, 5.0]])
+    plan_s = plans[np.arange(5), steps]
+    # obs t has seen offsets 0..t-1, since the plan's observation t - s
+    got = drift_offset_labels(plans, steps, offsets, lookahead=0)
+    np.testing.assert_allclose(got - plan_s, [[0, 0], [1, 0], [1, 2], [0, 0], [0, 0]])
+    # lookahead 1 adds the step the action acts in; the end is clamped to the last observation
+    got = drift_offset_labels(plans, steps, offsets, lookahead=1)
+    np.testing.assert_allclose(got - plan_s, [[1, 0], [1, 2], [4, 2], [0, 0], [5, 5]])
+    got = drift_offset_labels(plans, steps, offsets, lookahead=3)
+    np.testing.assert_allclose(got[3] - plan_s[3], [5, 5])
+    with pytest.raises(ValueError, match="one per step"):
+        drift_offset_labels(plans, steps, offsets[:4], 0)
+    with pytest.raises(ValueError, match="starts before the episode"):
+        drift_offset_labels(plans, np.array([1, 2, 3, 4, 5]), offsets, 0)
+
+
+def test_drift_offset_teacher_labels_drift_not_pushing(diffusion_base) -> None:
+    """Recorded with the env: a static episode's labels are its plans even while the agent pushes the block;
+    a drifting one's labels are its plans moved by exactly the drift seen since plan time."""
+    from lerobot_dcdp.pusht.corrections import DriftSpec, load_policy, rollout_corrections
+
+    kp = "observation.environment_state"
+    policy, pre, post = load_policy(None, str(diffusion_base), "object_anchored", kp)
+    none = DriftSpec("none", 0.0, 0.0, (0.0,), 25)
+    drift = DriftSpec("constant", 1.5, 90.0, (90.0,), 25)
+    static_ep, drift_ep = rollout_corrections(
+        policy, pre, post, [11, 11], [none, drift], max_steps=12, lookahead=0, teacher="drift_offset"
+    )
+    for ep in (static_ep, drift_ep):
+        assert len(ep["step"]) == 12 and ep["step"].max() == policy.config.n_action_steps - 1
+    plan_s = static_ep["plan"][np.arange(12), static_ep["step"]]
+    assert np.array_equal(static_ep["label"], plan_s)
+    plan_s = drift_ep["plan"][np.arange(12), drift_ep["step"]]
+    # the block starts far from the walls: every step's offset is the full (0, 1.5)
+    np.testing.assert_allclose(drift_ep["label"] - plan_s, np.outer(drift_ep["step"], [0.0, 1.5]), atol=1e-4)
+
+
 # ---------------------------------------------------------------- execution mode object_anchored
 def _normalised(policy, n_envs: int, steps: int) -> list[dict]:
     from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors

@@ -22,6 +22,11 @@ Teachers:
   episodes are driven open loop (unless ``execution`` is ``dcdp``). The student has to tell drift from
   pushing from its observations. ``--ramp r``: the share of the correction grows linearly with the
   episode's drift magnitude, full from r px/step on (small drifts barely cost the base: docs/ANALYSIS.md).
+- ``drift_offset`` (privileged: it reads the offsets the env applied): ``plan_s`` translated by the drift
+  alone, summed from plan time to the observation ``lookahead`` steps after this one. The drift is a pure
+  translation of the block (``pusht_perturbed``), so this is the exact exogenous part of the block's motion:
+  the push-induced motion the plan already expects is left alone, in every episode, static or not. The
+  student has to tell drift from pushing from its observations.
 
 ``execution`` picks who drives the env: ``object_anchored`` (the teacher), ``open_loop`` (the base) or
 ``dcdp`` (a trained corrector: a DAgger round, visiting the states the learner visits).
@@ -47,7 +52,7 @@ import torch
 from lerobot_dcdp.pusht.demos import EVAL_SEED_START, FPS, TASK
 
 EXECUTIONS = ("object_anchored", "open_loop", "dcdp")
-TEACHERS = ("object_anchored", "anchored_when_drifting")
+TEACHERS = ("object_anchored", "anchored_when_drifting", "drift_offset")
 MARKER = ".dcdp_corrections"
 
 
@@ -134,12 +139,45 @@ def anchored_labels(
     return anchor_actions(plan_s, rot, tr).numpy().astype(np.float32)
 
 
+def drift_offset_labels(
+    plans: np.ndarray, steps: np.ndarray, offsets: np.ndarray, lookahead: int
+) -> np.ndarray:
+    """Teacher actions of one episode: ``plan_s`` translated by the drift the env applied between the plan's
+    observation and observation ``t + lookahead`` (clamped to the episode's last observation).
+
+    Args:
+        plans: (T, H, A) raw chunk as planned, per frame; steps: (T,) s of each frame.
+        offsets: (T, 2) block translation the env applied in each step (``info["perturbation_offset"]``);
+            observation t has seen the offsets of steps 0..t-1.
+        lookahead: observations ahead of t whose drift is included (0: what observation t has seen).
+    """
+    t_len = len(steps)
+    t = np.arange(t_len)
+    plan_idx = t - steps
+    if (plan_idx < 0).any():
+        raise ValueError("a frame's chunk starts before the episode (plan_step larger than its index)")
+    if offsets.shape != (t_len, 2):
+        raise ValueError(f"offsets must be ({t_len}, 2), one per step, got {offsets.shape}")
+    seen = np.concatenate([np.zeros((1, 2)), np.cumsum(offsets, axis=0)])  # drift seen by obs 0..T
+    target = np.minimum(t + lookahead, t_len)
+    return (plans[t, steps] + seen[target] - seen[plan_idx]).astype(np.float32)
+
+
 @torch.no_grad()
 def rollout_corrections(
-    policy, pre, post, seeds, specs, max_steps: int, lookahead: int, weights: list[float] | None = None
+    policy,
+    pre,
+    post,
+    seeds,
+    specs,
+    max_steps: int,
+    lookahead: int,
+    weights: list[float] | None = None,
+    teacher: str = "object_anchored",
 ) -> list[dict]:
     """Run one batch of episodes (lock-step) and return each episode's frames with teacher labels
-    (``weights``: per episode, the share of the teacher's correction in the label; default 1)."""
+    (``weights``: per episode, the share of the teacher's correction in the label; default 1;
+    ``teacher``: ``drift_offset`` labels with the applied drift, any other with the anchoring)."""
     from lerobot.envs.utils import preprocess_observation
 
     from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
@@ -152,7 +190,8 @@ def rollout_corrections(
     ]
     obs = [env.reset(seed=s)[0] for env, s in zip(envs, seeds, strict=True)]
     n = len(seeds)
-    cols = [{k: [] for k in ("state", "kp", "plan", "step", "exec", "reward", "success")} for _ in seeds]
+    keys = ("state", "kp", "plan", "step", "exec", "reward", "success", "offset")
+    cols = [{k: [] for k in keys} for _ in seeds]
     active = np.ones(n, dtype=bool)
     torch.manual_seed(seeds[0])  # the base's sampling noise: the same command records the same data
     policy.reset()
@@ -172,6 +211,7 @@ def rollout_corrections(
             o, r, term, trunc, info = envs[i].step(action[i])
             obs[i] = o
             c["reward"].append(float(r))
+            c["offset"].append(np.asarray(info["perturbation_offset"], dtype=np.float64))
             c["success"].append(bool(info.get("is_success", False)))
             if term or trunc or c["success"][-1]:
                 active[i] = False
@@ -191,7 +231,10 @@ def rollout_corrections(
         plan_s = plans[np.arange(len(steps)), steps]
         w = 1.0 if weights is None else float(weights[i])
         labels = plan_s.copy()
-        if w > 0:
+        if w > 0 and teacher == "drift_offset":
+            labels = drift_offset_labels(plans, steps, np.stack(c["offset"]), lookahead)
+            labels = plan_s + w * (labels - plan_s)
+        elif w > 0:
             anchored = anchored_labels(plans, steps, kps.reshape(len(kps), -1, 2), lookahead)
             labels = plan_s + w * (anchored - plan_s)
         episodes.append(
@@ -355,6 +398,7 @@ def record_corrections(
                     max_steps,
                     lookahead,
                     weight[j : j + batch_size],
+                    teacher,
                 ):
                     _write_episode(ds, ep)
                     frames += len(ep["step"])
