@@ -102,3 +102,17 @@ def test_delay_table_and_plot(tmp_path) -> None:
     write_report(r, tmp_path / "RESULTS.md", tmp_path / "benchmark.json")
     assert "Table 3: a base that answers late" in (tmp_path / "RESULTS.md").read_text()
     assert (tmp_path / "score_vs_delay.png").stat().st_size > 0
+
+
+def test_merge_keeps_cells_another_run_wrote_meanwhile() -> None:
+    """Two benchmarks writing other cells of one file: neither restores its stale copy of the other's."""
+    from lerobot_dcdp.benchmark.run import merge_results
+
+    start = {"cells": {"a": {"score": 1}, "b": {"score": 2}}, "latency": {}, "models": {"m": {"sha": "old"}}}
+    ours = {"cells": {"a": {"score": 10}, "b": {"score": 2}}, "latency": {}, "models": {"m": {"sha": "new"}}}
+    disk = {"cells": {"a": {"score": 1}, "b": {"score": 20}, "c": {"score": 3}}, "latency": {"x": 1}}
+    merged = merge_results(disk, ours, start)
+    # a: ours (changed here); b: the other run's (ours is the stale copy we read); c, x: only on disk
+    assert merged["cells"] == {"a": {"score": 10}, "b": {"score": 20}, "c": {"score": 3}}
+    assert merged["latency"] == {"x": 1} and merged["models"] == {"m": {"sha": "new"}}
+    assert merge_results({}, ours, {}) == {k: ours[k] for k in ("cells", "latency", "models")}

@@ -13,6 +13,7 @@ and ``docs/RESULTS.md``.
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import os
 import platform
@@ -149,16 +150,19 @@ def main(argv: list[str] | None = None) -> None:
     conds = {c.name: c for c in CONDITIONS}
     video_dir = out.parent / "videos"
 
+    loaded = copy.deepcopy(results)
+
     def save() -> None:
-        """Merge this run's cells into the file on disk (another benchmark may write other models)."""
+        """Merge this run's cells into the file on disk (other benchmarks may write meanwhile)."""
         import fcntl
 
         out.parent.mkdir(parents=True, exist_ok=True)
         with open(out.with_suffix(".lock"), "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
             disk = json.loads(out.read_text()) if out.exists() else {}
-            for k in ("cells", "latency", "models"):
-                results[k] = {**disk.get(k, {}), **results.get(k, {})}
+            merged = merge_results(disk, results, loaded)
+            results.update(merged)
+            loaded.update(copy.deepcopy(merged))
             tmp = out.with_suffix(".json.tmp")
             tmp.write_text(json.dumps(results, indent=1))
             tmp.replace(out)
@@ -260,6 +264,18 @@ def main(argv: list[str] | None = None) -> None:
         _write_videos(video_dir, label)
     write_report(results, Path(a.report), out)
     print(f"wrote {out} and {a.report}")
+
+
+def merge_results(disk: dict, ours: dict, loaded: dict) -> dict:
+    """The ``cells``/``latency``/``models`` tables to write: what is on disk now, overridden only by entries
+    this run changed since it read the file (``loaded``), so that two benchmarks writing other cells of the
+    same file side by side never put back each other's stale copies."""
+    merged = {}
+    for k in ("cells", "latency", "models"):
+        before = loaded.get(k, {})
+        changed = {key: v for key, v in ours.get(k, {}).items() if before.get(key) != v}
+        merged[k] = {**disk.get(k, {}), **changed}
+    return merged
 
 
 def _fresh(cell: dict | None, ident: dict, seeds: list[int], max_steps: int) -> bool:
