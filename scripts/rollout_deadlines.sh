@@ -38,7 +38,7 @@ for mode in $MODES; do
   field() { sed -E "s/.*[ :]$1=([^ ]+).*/\1/" <<< "$summary"; }
   misses=$(grep -c "Record loop is running slower" "$log" || true)
   # no warning at all is a valid outcome (grep exits 1 on no match; pipefail would end the script)
-  slowest=$({ grep -o "running slower ([0-9.]* Hz)" "$log" || true; } | grep -o "[0-9.]*" | sort -g | head -1 || true)
+  slowest=$(grep -o "running slower ([0-9.]* Hz)" "$log" | grep -o "[0-9.]*" | sort -g | head -1 || true)
   slowest_ms=$([ -n "$slowest" ] && awk -v hz="$slowest" 'BEGIN{printf "%.0f", 1000/hz}' || echo "-")
   ticks=$(field actions)
   pct=$(awk -v m="$misses" -v t="$ticks" 'BEGIN{printf "%.1f", 100*m/t}')
