@@ -380,8 +380,18 @@ def test_per_chunk_terms_give_the_straightforward_actions(diffusion_base, correc
         policy.reset()
         runs[fast] = torch.stack([policy.select_action(dict(o)) for o in obs])
         assert (policy._terms is not None) == fast
-        assert (policy._step_graph is not None) == (fast and delay == 0)  # the traced per-step path
+        assert (policy._step_graph is not None) == (fast and delay == 0)  # the compiled per-step kernel
     assert (runs[True] - runs[False]).abs().max() <= 1e-6
+    with torch.no_grad():  # new weights (a training step, a reload): the fast path must follow them
+        policy.residual.net[-1].bias.add_(0.1)
+    for fast in (True, False):
+        policy.fast_inference = fast
+        torch.manual_seed(3)
+        policy.reset()
+        runs[fast] = torch.stack([policy.select_action(dict(o)) for o in obs])
+    assert (runs[True] - runs[False]).abs().max() <= 1e-6
+    with torch.no_grad():
+        policy.residual.net[-1].bias.sub_(0.1)
     policy.config.execution = "open_loop"
     torch.manual_seed(3)
     policy.reset()

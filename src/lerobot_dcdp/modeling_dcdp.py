@@ -45,7 +45,6 @@ from lerobot_dcdp.correction import (
     unnormalize,
 )
 from lerobot_dcdp.dynamics import DynamicFeatureExtractor, FrameEncoder, diff_loss
-from lerobot_dcdp.fast_step import ResidualStep, trace_step
 from lerobot_dcdp.residual import ResidualHead, change_input
 
 
@@ -150,11 +149,11 @@ class DCDPPolicy(PreTrainedPolicy):
         self.register_buffer("action_high", high, persistent=False)
         self._frame_keys = list(state_dims) + image_keys
         self._needed_keys = sorted(set(self._frame_keys) | set(base.config.input_features or {}))
-        #: residual: sum the head's fixed inputs once per chunk and run the rest of each step as one traced
-        #: graph (fast_step.py); same actions up to float rounding. False: the plain eager path.
+        #: residual: sum the head's fixed inputs once per chunk and, on CPU, run the rest of each step as one
+        #: compiled kernel (step_kernel.py); same actions up to float rounding. False: the plain eager path.
         self.fast_inference = True
-        self._traces: dict[tuple, object] = {}  # (batch, device, weight versions) -> traced ResidualStep
-        self._traced = None  # the one for the current chunk (not a submodule)
+        self._packed: tuple[tuple, object] | None = None  # (weight versions, step_kernel.StepWeights)
+        self._kernel = None  # the packed weights while the current chunk runs on the kernel, else None
         self.register_buffer("action_half_range", 0.5 * (high - low), persistent=False)
         self.reset()
 
@@ -546,8 +545,22 @@ class DCDPPolicy(PreTrainedPolicy):
         mode, horizon = cfg.execution, cfg.n_action_steps
         prepared = self.source.observe(batch)
         if mode == "dcdp" and self._step != 0 and self._step_graph is not None:
-            return self._traced_step(batch)
-        if mode == "dcdp":
+            return self._kernel_step(batch)
+        # A planning step that will run on the compiled kernel leaves the frame to it (it pushes the frame
+        # after the plan); the plan only needs the frame's standardised vector as its plan-time reference.
+        defer = (
+            mode == "dcdp"
+            and self._step == 0
+            and self._bank is not None
+            and self._bank.shape[0] == batch[self._frame_keys[0]].shape[0]
+            and self.fast_inference
+            and cfg.correction == "residual"
+            and not (cfg.anchor_input or cfg.inference_delay)
+            and self.frame_encoder.image is None
+        )
+        if defer:
+            self._rep = self.frame_encoder.vector({k: batch[k] for k in self._frame_keys})
+        elif mode == "dcdp":
             self._push_frame(batch)
         if cfg.inference_delay:
             self._remember(prepared, batch)
@@ -567,7 +580,11 @@ class DCDPPolicy(PreTrainedPolicy):
                     elif self.fast_inference and not cfg.anchor_input:
                         unit = to_unit_range(self._chunk, self.action_low, self.action_high)
                         self._terms, self._w_step = self.residual.chunk_terms(self._z, unit, self._at_plan)
-                        self._prepare_trace()
+                        self._prepare_kernel()
+                        if defer and self._step_graph is not None:
+                            return self._kernel_step(batch)
+                        if defer:
+                            self._push_frame(batch)
                     else:
                         self._terms = None
         self._t += 1
@@ -586,59 +603,55 @@ class DCDPPolicy(PreTrainedPolicy):
             return self.residual_step(feature, step, batch)
         return self.decode_step(feature, step)
 
-    # ------------------------------------------------------------------ traced per-step path (fast_step.py)
+    # ------------------------------------------------------------ compiled per-step path (step_kernel.py)
     @property
     def _step_graph(self):
-        """The traced per-step path for the current chunk, or None (eager path)."""
-        return self._traced if self._terms is not None else None
+        """The compiled per-step path's weights for the current chunk, or None (eager path)."""
+        return self._kernel if self._terms is not None else None
 
-    def _prepare_trace(self) -> None:
-        """(Re)trace the per-step path when the weights, batch size or device changed since the last trace;
-        only for a vector-input residual corrector without anchor input or inference delay, in eval mode."""
-        fe = self.frame_encoder
+    def _prepare_kernel(self) -> None:
+        """Use the compiled per-step kernel for this chunk when it covers the corrector (vector frames, no
+        anchor input, no inference delay, float32 on CPU, eval mode); re-pack the weights when they change."""
+        from lerobot_dcdp import step_kernel
+
+        self._kernel = None
         if (
             self.training
-            or fe.image is not None
-            or fe.state is None
             or self.config.inference_delay
             or self._rep is None
             or self._bank is None
+            or self._bank.device.type != "cpu"
+            or self._bank.dtype != torch.float32
+            or not step_kernel.supports(self.frame_encoder, self.extractor)
         ):
-            self._traced = None
             return
-        versions = tuple(t._version for t in (*self.parameters(), *self.buffers()))
-        key = (self._bank.shape[0], str(self._bank.device), versions)
-        if key in self._traces:
-            self._traced = self._traces[key]
-            return
-        self._traces = {k: v for k, v in self._traces.items() if k[2] == versions}  # weights changed: drop
-        x = fe.state_shift + fe.state_scale * self._rep  # a frame's raw vector (the example's values)
-        example = (
-            x,
-            self._bank,
-            self._at_plan,
-            self._terms[:, 0],
-            self._w_step,
-            self._chunk[:, 0],
-            self.action_half_range,
-        )
-        step = ResidualStep(fe, self.extractor, self.residual, self.config.change_scale)
-        self._traced = self._traces[key] = trace_step(step, example)
+        versions = (self.config.change_scale, *(t._version for t in (*self.parameters(), *self.buffers())))
+        if self._packed is None or self._packed[0] != versions:
+            packed = step_kernel.pack_weights(
+                self.frame_encoder, self.extractor, self.residual, self.config.change_scale
+            )
+            self._packed = (versions, packed)
+            step_kernel.warm_up(packed)  # a planning step pays the kernel's one-off load, not a control step
+        self._kernel = self._packed[1]
+        self._run_kernel = step_kernel.residual_step  # numba is imported only once a kernel is used
+        self._w_step_np = self._w_step.T.contiguous().numpy()  # the kernel's (out, in) layout
+        self._half_np = self.action_half_range.numpy()
 
-    def _traced_step(self, batch: dict[str, Tensor]) -> Tensor:
+    def _kernel_step(self, batch: dict[str, Tensor]) -> Tensor:
         step = self._step
         self.last_step = step
         self._step = (self._step + 1) % self.config.n_action_steps
         self._t += 1
         x = torch.cat([batch[k] for k in self.frame_encoder.state_keys], dim=-1)
-        action, self._bank, self._rep = self._step_graph(
+        action, self._bank, self._rep = self._run_kernel(
+            self._kernel,
             x,
             self._bank,
             self._at_plan,
             self._terms[:, step],
-            self._w_step,
+            self._w_step_np,
             self._chunk[:, step],
-            self.action_half_range,
+            self._half_np,
         )
         return action
 

@@ -40,6 +40,8 @@ def main(argv: list[str] | None = None) -> None:
             str(a.episodes),
             "--latency-steps",
             "100",
+            "--latency-rounds",
+            "3",
             "--videos",
             "1",
             "--out",

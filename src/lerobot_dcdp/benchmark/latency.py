@@ -4,8 +4,8 @@ The loop is ``lerobot-eval``'s (pre-processor -> ``select_action`` -> post-proce
 batch 1 and batch 50, one thread, static PushT, modes interleaved episode by episode so they share the
 same machine state. Per mode: mean and p95 per control step over whole episodes (a base call every H
 steps included). Then the corrector's own per-step time, split by part (frame encoding + bank update,
-dynamic extractor, correction head, or the traced step that replaces them, and the once-per-chunk work),
-each part timed by calling the policy's own methods on real observations.
+dynamic extractor, correction head, or the compiled step kernel that replaces them on CPU, and the
+once-per-chunk work), each part timed by calling the policy's own methods on real observations.
 Prints Markdown tables and writes JSON.
 """
 
@@ -31,24 +31,38 @@ def time_modes(policy, pre, post, modes, episodes: int, steps: int, batch: int, 
 
     static = next(c for c in CONDITIONS if c.name == "static")
     times: dict[str, list[float]] = {m: [] for m in modes}
+    episode_means: dict[str, list[float]] = {m: [] for m in modes}
     for ep in range(episodes):
         seeds = list(range(seed + ep * batch, seed + (ep + 1) * batch))
         for mode in modes:
             policy.config.execution = mode
             r = rollout(policy, pre, post, static, seeds, steps)
             times[mode] += r.step_times_ms[1:]  # the first step pays one-off allocations
+            episode_means[mode].append(float(np.mean(r.step_times_ms[1:])))
     return {
-        m: {"mean_ms": float(np.mean(t)), "p95_ms": float(np.percentile(t, 95)), "steps": len(t)}
+        m: {
+            "mean_ms": float(np.mean(t)),
+            "p95_ms": float(np.percentile(t, 95)),
+            "steps": len(t),
+            "episode_mean_ms": episode_means[m],
+        }
         for m, t in times.items()
     }
+
+
+def ratio_spread(per: dict, mode: str, reference: str = "open_loop") -> tuple[float, float]:
+    """Mean and standard error of the per-episode ratios ``mode / reference`` (each episode of ``mode`` ran
+    right after the same seeds under ``reference``): how much the headline ratio moves with machine noise."""
+    r = np.asarray(per[mode]["episode_mean_ms"]) / np.asarray(per[reference]["episode_mean_ms"])
+    return float(r.mean()), float(r.std(ddof=1) / np.sqrt(len(r))) if len(r) > 1 else float("nan")
 
 
 @torch.no_grad()
 def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str, float]:
     """Mean ms per control step of each part of the DCDP per-step path (batch 1): the eager parts (frame
-    encoding + bank update, dynamic extractor, correction head; ``fast_inference = False``), the traced step
-    that replaces them (``fast_step.py``, when the corrector has one) and the once-per-chunk work (chunk
-    latent, head terms, trace check) divided by H."""
+    encoding + bank update, dynamic extractor, correction head; ``fast_inference = False``), the compiled
+    step that replaces them (``step_kernel.py``, when the corrector has one) and the once-per-chunk work
+    (chunk latent, head terms, kernel check) divided by H."""
     from lerobot_dcdp.benchmark.rollout import _stack_obs
     from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
 
@@ -64,9 +78,9 @@ def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str
     for fast in (False, True):
         policy.fast_inference = fast
         policy.reset()
-        policy.select_action(dict(batch))  # plans a chunk: z, plan-time state (and the trace)
+        policy.select_action(dict(batch))  # plans a chunk: z, plan-time state (and the kernel)
         if fast and policy._step_graph is not None:
-            parts["whole step, traced"] = []
+            parts["whole step, compiled kernel"] = []
         for i in range(warmup + steps):
             step = 1 + i % (cfg.n_action_steps - 1)
             if fast:
@@ -74,9 +88,9 @@ def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str
                     break
                 policy._step = step
                 t0 = time.perf_counter()
-                policy._traced_step(batch)
+                policy._kernel_step(batch)
                 if i >= warmup:
-                    parts["whole step, traced"].append((time.perf_counter() - t0) * 1e3)
+                    parts["whole step, compiled kernel"].append((time.perf_counter() - t0) * 1e3)
                 continue
             t0 = time.perf_counter()
             policy._push_frame(batch)
@@ -100,7 +114,7 @@ def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str
         if policy._terms is not None:
             unit = to_unit_range(chunk, policy.action_low, policy.action_high)
             policy._terms, policy._w_step = policy.residual.chunk_terms(policy._z, unit, policy._at_plan)
-            policy._prepare_trace()
+            policy._prepare_kernel()
         if i >= warmup:
             per_chunk.append((time.perf_counter() - t0) * 1e3 / cfg.n_action_steps)
     policy.fast_inference = True
@@ -141,7 +155,12 @@ def main(argv: list[str] | None = None) -> None:
         for m, v in per.items():
             print(f"| {m} | {v['mean_ms']:.2f} | {v['p95_ms']:.2f} |")
         if "dcdp" in per and "open_loop" in per:
-            print(f"\nDCDP / open loop = {per['dcdp']['mean_ms'] / per['open_loop']['mean_ms']:.3f}")
+            mean, se = ratio_spread(per, "dcdp")
+            n = len(per["dcdp"]["episode_mean_ms"])
+            print(
+                f"\nDCDP / open loop = {per['dcdp']['mean_ms'] / per['open_loop']['mean_ms']:.3f} "
+                f"(per-episode ratios: {mean:.3f} +- {se:.3f} s.e., {n} episodes)"
+            )
     print("\n| corrector part (batch 1) | mean ms/step |\n|---|---|")
     for k, v in res["corrector_parts_ms"].items():
         print(f"| {k} | {v:.3f} |")

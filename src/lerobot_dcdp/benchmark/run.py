@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--max-steps", type=int, default=300)
     p.add_argument("--batch-size", type=int, default=50, help="envs rolled out together")
     p.add_argument("--latency-steps", type=int, default=300, help="batch-1 steps timed per method (0: skip)")
-    p.add_argument("--latency-rounds", type=int, default=3, help="episodes per method, interleaved")
+    p.add_argument("--latency-rounds", type=int, default=10, help="episodes per method, interleaved")
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     p.add_argument("--videos", type=int, default=2, help="side-by-side open_loop|dcdp videos to render")
     p.add_argument("--out", default="results/benchmark.json")
