@@ -398,3 +398,17 @@ def test_per_chunk_terms_give_the_straightforward_actions(diffusion_base, correc
     open_loop = torch.stack([policy.select_action(dict(o)) for o in obs])
     moved = (runs[True] - open_loop).abs().max()
     assert 1e-2 < moved < 2.0, moved  # a real correction, within the action range
+
+
+def test_compiled_step_refuses_a_batch_that_changed_mid_chunk(diffusion_base, corrections_root) -> None:
+    policy = _residual_policy(diffusion_base, corrections_root).eval()
+    two, one = _normalised(policy, 2, 2), _normalised(policy, 1, 1)
+    policy.reset()
+    for o in two:  # a planning step and one step on the compiled kernel
+        policy.select_action(dict(o))
+    assert policy._step_graph is not None and policy._step == 2
+    with pytest.raises(ValueError, match=r"expected \(batch, features\) = \(2, 16\)"):
+        policy.select_action(dict(one[0]))
+    assert policy._step == 2  # nothing advanced
+    policy.reset()
+    assert policy.select_action(dict(one[0])).shape[0] == 1  # a new episode may change the batch

@@ -79,8 +79,14 @@ def test_kernel_follows_new_weights_after_repacking() -> None:
 
 def test_kernel_refuses_what_it_does_not_cover() -> None:
     frames, extractor, head = _modules(True, True)
-    gelu_layer = DynamicFeatureExtractor(M, D, HEADS)
-    gelu_layer.temporal = torch.nn.TransformerEncoderLayer(D, HEADS, 2 * D, 0.0, "gelu", batch_first=True)
-    assert supports(frames, extractor) and not supports(frames, gelu_layer)
-    with pytest.raises(ValueError, match="ReLU"):
-        pack_weights(frames, gelu_layer, head, 1.0)
+    layer = torch.nn.TransformerEncoderLayer
+    gelu, post_norm = DynamicFeatureExtractor(M, D, HEADS), DynamicFeatureExtractor(M, D, HEADS)
+    gelu.temporal = layer(D, HEADS, 2 * D, 0.0, "gelu", batch_first=True, norm_first=True)
+    post_norm.temporal = layer(D, HEADS, 2 * D, 0.0, batch_first=True, norm_first=False)
+    assert supports(frames, extractor)
+    for other in (gelu, post_norm):
+        assert not supports(frames, other)
+        with pytest.raises(ValueError, match="ReLU, norm_first"):
+            pack_weights(frames, other, head, 1.0)
+    images = FrameEncoder({}, ["observation.image"], D, 20)
+    assert not supports(images, extractor)

@@ -151,6 +151,7 @@ class DCDPPolicy(PreTrainedPolicy):
         self._needed_keys = sorted(set(self._frame_keys) | set(base.config.input_features or {}))
         #: residual: sum the head's fixed inputs once per chunk and, on CPU, run the rest of each step as one
         #: compiled kernel (step_kernel.py); same actions up to float rounding. False: the plain eager path.
+        #: Both are chosen (and the kernel's weights re-packed if they changed) at planning steps only.
         self.fast_inference = True
         self._packed: tuple[tuple, object] | None = None  # (weight versions, step_kernel.StepWeights)
         self._kernel = None  # the packed weights while the current chunk runs on the kernel, else None
@@ -625,7 +626,12 @@ class DCDPPolicy(PreTrainedPolicy):
             or not step_kernel.supports(self.frame_encoder, self.extractor)
         ):
             return
-        versions = (self.config.change_scale, *(t._version for t in (*self.parameters(), *self.buffers())))
+        # a tensor's storage and version change with optimiser steps, load_state_dict (copy or assign) and
+        # `param.data = ...`; not with writes through `param.data` (call `policy._packed = None` after those)
+        versions = (
+            self.config.change_scale,
+            *((t.data_ptr(), t._version) for t in (*self.parameters(), *self.buffers())),
+        )
         if self._packed is None or self._packed[0] != versions:
             packed = step_kernel.pack_weights(
                 self.frame_encoder, self.extractor, self.residual, self.config.change_scale
@@ -638,11 +644,17 @@ class DCDPPolicy(PreTrainedPolicy):
         self._half_np = self.action_half_range.numpy()
 
     def _kernel_step(self, batch: dict[str, Tensor]) -> Tensor:
+        x = torch.cat([batch[k] for k in self.frame_encoder.state_keys], dim=-1)
+        expected = (self._bank.shape[0], self._kernel.shift.shape[0])
+        if tuple(x.shape) != expected:  # the kernel does not bounds-check: refuse before it runs
+            raise ValueError(
+                f"observation vector inputs {self.frame_encoder.state_keys} have shape {tuple(x.shape)}, "
+                f"expected (batch, features) = {expected} as in this chunk (call reset() between episodes)"
+            )
         step = self._step
         self.last_step = step
         self._step = (self._step + 1) % self.config.n_action_steps
         self._t += 1
-        x = torch.cat([batch[k] for k in self.frame_encoder.state_keys], dim=-1)
         action, self._bank, self._rep = self._run_kernel(
             self._kernel,
             x,
