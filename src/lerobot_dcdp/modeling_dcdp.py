@@ -177,7 +177,28 @@ class DCDPPolicy(PreTrainedPolicy):
             )
         if config.pretrained_path is None and os.path.isdir(str(pretrained_name_or_path)):
             config.pretrained_path = pretrained_name_or_path
-        return super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
+        policy = super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
+        policy.warm_up_kernel()
+        return policy
+
+    def warm_up_kernel(self) -> None:
+        """Load the compiled per-step kernel (step_kernel.py) now, when it will be used: its first call in a
+        process loads it from numba's disk cache (~0.5 s with the import) or compiles it (~15 s, once per
+        machine), which would otherwise stall the first control step (``from_pretrained`` calls this)."""
+        cfg = self.config
+        if not (
+            self.fast_inference
+            and cfg.correction == "residual"
+            and not (cfg.anchor_input or cfg.inference_delay)
+            and self.action_low.device.type == "cpu"
+        ):
+            return
+        from lerobot_dcdp import step_kernel
+
+        if step_kernel.supports(self.frame_encoder, self.extractor):
+            step_kernel.warm_up(
+                step_kernel.pack_weights(self.frame_encoder, self.extractor, self.residual, cfg.change_scale)
+            )
 
     def _check_against_base(self, base: PreTrainedPolicy) -> None:
         cfg, bcfg = self.config, base.config
