@@ -154,6 +154,7 @@ class DCDPPolicy(PreTrainedPolicy):
         #: Both are chosen (and the kernel's weights re-packed if they changed) at planning steps only.
         self.fast_inference = True
         self._packed: tuple[tuple, object] | None = None  # (weight versions, step_kernel.StepWeights)
+        self._kernel_supported: bool | None = None  # step_kernel.supports(...) of these modules, once known
         self._kernel = None  # the packed weights while the current chunk runs on the kernel, else None
         self.register_buffer("action_half_range", 0.5 * (high - low), persistent=False)
         self.reset()
@@ -185,20 +186,8 @@ class DCDPPolicy(PreTrainedPolicy):
         """Load the compiled per-step kernel (step_kernel.py) now, when it will be used: its first call in a
         process loads it from numba's disk cache (~0.5 s with the import) or compiles it (~15 s, once per
         machine), which would otherwise stall the first control step (``from_pretrained`` calls this)."""
-        cfg = self.config
-        if not (
-            self.fast_inference
-            and cfg.correction == "residual"
-            and not (cfg.anchor_input or cfg.inference_delay)
-            and self.action_low.device.type == "cpu"
-        ):
-            return
-        from lerobot_dcdp import step_kernel
-
-        if step_kernel.supports(self.frame_encoder, self.extractor):
-            step_kernel.warm_up(
-                step_kernel.pack_weights(self.frame_encoder, self.extractor, self.residual, cfg.change_scale)
-            )
+        if self._kernel_applies():
+            self._kernel_weights()
 
     def _check_against_base(self, base: PreTrainedPolicy) -> None:
         cfg, bcfg = self.config, base.config
@@ -575,10 +564,7 @@ class DCDPPolicy(PreTrainedPolicy):
             and self._step == 0
             and self._bank is not None
             and self._bank.shape[0] == batch[self._frame_keys[0]].shape[0]
-            and self.fast_inference
-            and cfg.correction == "residual"
-            and not (cfg.anchor_input or cfg.inference_delay)
-            and self.frame_encoder.image is None
+            and self._kernel_applies()
         )
         if defer:
             self._rep = self.frame_encoder.vector({k: batch[k] for k in self._frame_keys})
@@ -631,22 +617,30 @@ class DCDPPolicy(PreTrainedPolicy):
         """The compiled per-step path's weights for the current chunk, or None (eager path)."""
         return self._kernel if self._terms is not None else None
 
-    def _prepare_kernel(self) -> None:
-        """Use the compiled per-step kernel for this chunk when it covers the corrector (vector frames, no
-        anchor input, no inference delay, float32 on CPU, eval mode); re-pack the weights when they change."""
+    def _kernel_applies(self) -> bool:
+        """Whether the compiled per-step kernel covers this corrector as it runs now: a residual head without
+        anchor input or inference delay, vector frames, float32 on CPU, eval mode, ``fast_inference``."""
+        cfg = self.config
+        weight = self.residual.net[0].weight if cfg.correction == "residual" else None
+        if not (
+            weight is not None
+            and self.fast_inference
+            and not self.training
+            and not (cfg.anchor_input or cfg.inference_delay)
+            and weight.device.type == "cpu"
+            and weight.dtype == torch.float32
+        ):
+            return False
+        if self._kernel_supported is None:
+            from lerobot_dcdp import step_kernel
+
+            self._kernel_supported = step_kernel.supports(self.frame_encoder, self.extractor)
+        return self._kernel_supported
+
+    def _kernel_weights(self):
+        """The kernel's packed weights, re-packed (and the kernel loaded) when the module weights changed."""
         from lerobot_dcdp import step_kernel
 
-        self._kernel = None
-        if (
-            self.training
-            or self.config.inference_delay
-            or self._rep is None
-            or self._bank is None
-            or self._bank.device.type != "cpu"
-            or self._bank.dtype != torch.float32
-            or not step_kernel.supports(self.frame_encoder, self.extractor)
-        ):
-            return
         # a tensor's storage and version change with optimiser steps, load_state_dict (copy or assign) and
         # `param.data = ...`; not with writes through `param.data` (call `policy._packed = None` after those)
         versions = (
@@ -658,9 +652,16 @@ class DCDPPolicy(PreTrainedPolicy):
                 self.frame_encoder, self.extractor, self.residual, self.config.change_scale
             )
             self._packed = (versions, packed)
-            step_kernel.warm_up(packed)  # a planning step pays the kernel's one-off load, not a control step
-        self._kernel = self._packed[1]
+            step_kernel.warm_up(packed)  # the first call in a process loads the kernel: not on a control step
         self._run_kernel = step_kernel.residual_step  # numba is imported only once a kernel is used
+        return self._packed[1]
+
+    def _prepare_kernel(self) -> None:
+        """Run this chunk's steps on the compiled kernel when it applies (after ``chunk_terms``)."""
+        self._kernel = None
+        if self._rep is None or self._bank is None or not self._kernel_applies():
+            return
+        self._kernel = self._kernel_weights()
         self._w_step_np = self._w_step.T.contiguous().numpy()  # the kernel's (out, in) layout
         self._half_np = self.action_half_range.numpy()
 
