@@ -1,12 +1,15 @@
 #!/usr/bin/env bash
 # Trains the two shipped PushT base policies with the stock lerobot-train on CPU (seed 1000).
-# Usage: scripts/train_bases.sh {diffusion|diffusion-continue|act} [extra lerobot-train flags, e.g. --resume=true]
+# Usage: scripts/train_bases.sh {diffusion|diffusion-continue|act|act-continue} [extra lerobot-train flags,
+#        e.g. --resume=true]
 #   diffusion-continue FROM: 10 000 more steps from the weights in FROM (a pretrained_model dir), lr 1e-4 cosine
+#   act-continue FROM: 8 000 more steps from the ACT weights in FROM on $DATA (e.g. demonstrations merged with
+#     takeover episodes, see models/README.md), lr 1e-4 as the ACT recipe
 # Data: .venv/bin/dcdp-pusht-demos --root data/pusht_expert --episodes 500 --seed 0 --workers 2
 set -euo pipefail
 kind=$1; shift
-DATA=${DATA:-data/pusht_expert}
-common=(--dataset.repo_id=local/pusht_expert --dataset.root="$DATA" --policy.device=cpu --policy.push_to_hub=false
+DATA=${DATA:-data/pusht_expert}  # REPO: its repo id (default local/pusht_expert)
+common=(--dataset.repo_id=${REPO:-local/pusht_expert} --dataset.root="$DATA" --policy.device=cpu --policy.push_to_hub=false
         --wandb.enable=false --num_workers=1 --seed=1000 --log_freq=200)
 case $kind in
   diffusion)
@@ -32,5 +35,10 @@ case $kind in
       --policy.pretrained_backbone_weights=null \
       --batch_size=64 --steps=10000 --save_freq=2000 \
       --output_dir=${OUT:-runs/act_base} "$@" ;;
-  *) echo "usage: $0 {diffusion|diffusion-continue FROM|act}" >&2; exit 2 ;;
+  act-continue)
+    from=$1; shift
+    exec .venv/bin/lerobot-train --policy.path="$from" "${common[@]}" \
+      --policy.optimizer_lr=1e-4 --batch_size=64 --steps=8000 --save_freq=2000 \
+      --output_dir=${OUT:-runs/act_continued} "$@" ;;
+  *) echo "usage: $0 {diffusion|diffusion-continue FROM|act|act-continue FROM}" >&2; exit 2 ;;
 esac

@@ -15,6 +15,7 @@ import multiprocessing as mp
 import shutil
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,9 +66,20 @@ def features(images: bool, keypoints: bool = True) -> dict:
 
 
 def run_episode(
-    seed: int, images: bool = False, hold_steps: int = 3, max_steps: int = 300, expert_config=None
+    seed: int,
+    images: bool = False,
+    hold_steps: int = 3,
+    max_steps: int = 300,
+    expert_config=None,
+    lead: Callable[[dict], np.ndarray] | None = None,
+    lead_steps: int = 0,
 ) -> Episode:
-    """One expert episode from env seed ``seed``; ``hold_steps`` still frames are recorded after success."""
+    """One expert episode from env seed ``seed``; ``hold_steps`` still frames are recorded after success.
+
+    With ``lead`` (e.g. a :class:`~lerobot_dcdp.pusht.takeover.PolicyLead`), ``lead`` drives the first
+    ``lead_steps`` steps unrecorded and the expert takes over from the state it left; only the expert's part
+    is recorded. An episode the lead solves itself comes back with ``success=False`` and no frames.
+    """
     import gym_pusht  # noqa: F401
     import gymnasium as gym
 
@@ -76,7 +88,7 @@ def run_episode(
     env = gym.make(
         "gym_pusht/PushT-v0",
         obs_type="environment_state_agent_pos",
-        max_episode_steps=max_steps + hold_steps + 1,
+        max_episode_steps=(lead_steps if lead is not None else 0) + max_steps + hold_steps + 1,
         disable_env_checker=True,
     )
     expert = ScriptedExpert(expert_config, seed=seed)
@@ -84,6 +96,23 @@ def run_episode(
     u = env.unwrapped
     prev = np.array(u.agent.position, dtype=float)
     cols: dict[str, list] = {k: [] for k in ("state", "env_state", "action", "reward", "success", "image")}
+    if lead is not None:
+        if hasattr(lead, "reset"):
+            lead.reset()
+        for _ in range(lead_steps):
+            prev = np.asarray(lead(obs), dtype=float)
+            new_obs, _, _, _, info = env.step(prev)
+            obs.update(new_obs)
+            if info["is_success"]:  # nothing left to demonstrate
+                env.close()
+                return Episode(
+                    seed,
+                    False,
+                    *(np.zeros((0, n), np.float32) for n in (2, 16, 2)),
+                    np.zeros(0, np.float32),
+                    np.zeros(0, bool),
+                    None,
+                )
 
     def step(a) -> bool:
         cols["state"].append(obs["agent_pos"].astype(np.float32))
@@ -127,8 +156,21 @@ def run_episode(
     )
 
 
-def _worker(args: tuple[int, bool, int, int]) -> Episode:
-    return run_episode(*args)
+_LEADS: dict = {}  # per worker process: takeover policy path -> PolicyLead
+
+
+def _worker(args: tuple[int, bool, int, int, tuple[str, int, int] | None]) -> Episode:
+    seed, images, hold_steps, max_steps, takeover = args
+    if takeover is None:
+        return run_episode(seed, images, hold_steps, max_steps)
+    from lerobot_dcdp.pusht.takeover import PolicyLead, lead_steps_for
+
+    path, low, high = takeover
+    if path not in _LEADS:
+        _LEADS[path] = PolicyLead(path)
+    return run_episode(
+        seed, images, hold_steps, max_steps, lead=_LEADS[path], lead_steps=lead_steps_for(seed, low, high)
+    )
 
 
 def record_demonstrations(
@@ -143,8 +185,14 @@ def record_demonstrations(
     force: bool = False,
     progress: bool = True,
     keypoints: bool = True,
+    takeover: tuple[str, int, int] | None = None,
 ) -> dict:
     """Write ``episodes`` successful expert episodes to a LeRobotDataset v3 at ``root``.
+
+    ``takeover=(policy_path, low, high)`` records takeover episodes instead: the pretrained state-based policy
+    at ``policy_path`` drives each episode for ``low..high`` steps (seeded per episode, unrecorded), then the
+    expert takes over and is recorded to success (see :mod:`lerobot_dcdp.pusht.takeover`). Episodes the policy
+    solves on its own are skipped.
 
     Returns:
         Summary dict: kept/tried episodes, frames, seeds used.
@@ -165,6 +213,15 @@ def record_demonstrations(
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     if seed < 0:
         raise ValueError(f"seed must be >= 0, got {seed}")
+    if takeover is not None:
+        from lerobot_dcdp.pusht.takeover import PolicyLead
+
+        path, low, high = takeover
+        if not 0 <= low <= high:
+            raise ValueError(f"takeover steps must satisfy 0 <= low <= high, got low={low} high={high}")
+        if images:
+            raise ValueError("takeover episodes are state-only; leave out images=True")
+        PolicyLead(path)  # a bad path or a policy reading other inputs fails here, before anything is written
     max_tries = 2 * episodes + 10
     if seed + max_tries > EVAL_SEED_START:
         raise ValueError(
@@ -198,7 +255,7 @@ def record_demonstrations(
         pool = ctx.Pool(workers) if workers > 1 else None
         bar = tqdm(total=episodes, desc="expert episodes", disable=not progress)
         try:
-            args = ((s, images, hold_steps, max_steps) for s in range(seed, seed + max_tries))
+            args = ((s, images, hold_steps, max_steps, takeover) for s in range(seed, seed + max_tries))
             it = pool.imap(_worker, args) if pool else map(_worker, args)
             for ep in it:
                 tried += 1
@@ -231,7 +288,8 @@ def record_demonstrations(
         ds.finalize()
         if kept < episodes:
             raise ValueError(f"only {kept} of {tried} expert episodes succeeded; wanted {episodes}")
-        (tmp_root / MARKER).write_text(f"episodes={kept} seed={seed}\n")
+        lead = "" if takeover is None else f" takeover={takeover[0]} steps={takeover[1]}..{takeover[2]}"
+        (tmp_root / MARKER).write_text(f"episodes={kept} seed={seed}{lead}\n")
         if root.exists():
             shutil.rmtree(root)
         tmp_root.rename(root)
@@ -255,6 +313,19 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--hold-steps", type=int, default=3, help="still frames recorded after success")
     p.add_argument("--force", action="store_true", help="overwrite an existing --root")
+    p.add_argument(
+        "--takeover-policy",
+        help="pretrained_model dir of a state-based policy that drives each episode first; the expert takes "
+        "over and only its part is recorded (DAgger-style recovery data)",
+    )
+    p.add_argument(
+        "--takeover-steps",
+        type=int,
+        nargs=2,
+        default=(8, 160),
+        metavar=("LOW", "HIGH"),
+        help="the policy drives LOW..HIGH steps (seeded per episode) before the expert takes over",
+    )
     a = p.parse_args(argv)
     try:
         info = record_demonstrations(
@@ -267,6 +338,7 @@ def main(argv: list[str] | None = None) -> None:
             a.hold_steps,
             force=a.force,
             keypoints=not a.no_keypoints,
+            takeover=None if a.takeover_policy is None else (a.takeover_policy, *a.takeover_steps),
         )
     except ValueError as e:
         sys.exit(f"dcdp-pusht-demos: error: {e}")

@@ -1,0 +1,69 @@
+"""A pretrained LeRobot policy driving PushT for the first steps of a recorded expert episode (DAgger-style
+takeover data).
+
+A chunk regressor trained on expert demonstrations drifts into states no demonstration visits and stalls there
+(see ``scripts/diagnostics/act_stall_neighbours.py``). Recording the expert *from the states the policy
+reaches* adds demonstrations of how to recover from them: the policy drives an episode for a seeded number of
+steps, then the scripted expert takes over and is recorded to success. This is one round of DAgger (Ross et
+al., 2011) with the expert's own continuation as the label, so the result is an ordinary LeRobotDataset of
+consecutive frames that stock ``lerobot-train`` reads (merge it with the demonstrations using
+``lerobot-edit-dataset --operation.type merge``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: observation keys of ``gym_pusht`` (obs_type ``environment_state_agent_pos``) -> LeRobot feature names
+_OBS_KEYS = {"agent_pos": "observation.state", "environment_state": "observation.environment_state"}
+
+
+class PolicyLead:
+    """A pretrained state-based policy as a callable ``gym_pusht observation -> action``.
+
+    Args:
+        path: A ``pretrained_model`` directory (config, weights and saved processors) of any registered policy
+            type whose inputs are ``observation.state`` and/or ``observation.environment_state``.
+
+    Raises:
+        ValueError: ``path`` holds no policy config, or the policy reads an input this env does not give.
+    """
+
+    def __init__(self, path: str) -> None:
+        import torch
+        from lerobot.policies.factory import make_pre_post_processors
+
+        from lerobot_dcdp.base_policy import load_base_policy
+
+        torch.set_num_threads(1)
+        try:
+            self.policy = load_base_policy(path, device="cpu")
+        except ValueError as e:
+            raise ValueError(f"takeover policy {path!r}: {e}") from e
+        unknown = sorted(set(self.policy.config.input_features) - set(_OBS_KEYS.values()))
+        if unknown:
+            raise ValueError(
+                f"takeover policy {path!r} reads {unknown}; a takeover lead must read only "
+                f"{sorted(_OBS_KEYS.values())} (state-based PushT)"
+            )
+        self.pre, self.post = make_pre_post_processors(self.policy.config, pretrained_path=path)
+
+    def reset(self) -> None:
+        self.policy.reset()
+
+    def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        import torch
+
+        batch = {
+            feat: torch.as_tensor(np.asarray(obs[key], dtype=np.float32))[None]
+            for key, feat in _OBS_KEYS.items()
+            if feat in self.policy.config.input_features
+        }
+        with torch.inference_mode():
+            action = self.post(self.policy.select_action(self.pre(batch)))
+        return action[0].numpy().astype(np.float64)
+
+
+def lead_steps_for(seed: int, low: int, high: int) -> int:
+    """Steps the lead drives episode ``seed``: uniform in ``[low, high]``, a pure function of the seed."""
+    return int(np.random.default_rng([seed, 7]).integers(low, high + 1))
