@@ -167,6 +167,10 @@ def _worker(args: tuple[int, bool, int, int, tuple[str, int, int] | None]) -> Ep
 
     path, low, high = takeover
     if path not in _LEADS:
+        if mp.current_process().name != "MainProcess":  # one thread per pool worker: they share the cores
+            import torch
+
+            torch.set_num_threads(1)
         _LEADS[path] = PolicyLead(path)
     return run_episode(
         seed, images, hold_steps, max_steps, lead=_LEADS[path], lead_steps=lead_steps_for(seed, low, high)

@@ -30,12 +30,10 @@ class PolicyLead:
     """
 
     def __init__(self, path: str) -> None:
-        import torch
         from lerobot.policies.factory import make_pre_post_processors
 
         from lerobot_dcdp.base_policy import load_base_policy
 
-        torch.set_num_threads(1)
         try:
             self.policy = load_base_policy(path, device="cpu")
         except ValueError as e:
