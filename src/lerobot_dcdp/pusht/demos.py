@@ -225,7 +225,9 @@ def record_demonstrations(
             raise ValueError(f"takeover steps must satisfy 0 <= low <= high, got low={low} high={high}")
         if images:
             raise ValueError("takeover episodes are state-only; leave out images=True")
-        PolicyLead(path)  # a bad path or a policy reading other inputs fails here, before anything is written
+        # a bad path or a policy reading other inputs fails here, before anything is written; the loaded lead
+        # is reused when the episodes run in this process (workers=1)
+        _LEADS[path] = PolicyLead(path)
     max_tries = 2 * episodes + 10
     if seed + max_tries > EVAL_SEED_START:
         raise ValueError(

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-#: observation keys of ``gym_pusht`` (obs_type ``environment_state_agent_pos``) -> LeRobot feature names
-_OBS_KEYS = {"agent_pos": "observation.state", "environment_state": "observation.environment_state"}
+#: what ``gym_pusht`` (obs_type ``environment_state_agent_pos``) gives, as LeRobot features
+_ENV_FEATURES = ("observation.environment_state", "observation.state")
 
 
 class PolicyLead:
@@ -38,11 +38,11 @@ class PolicyLead:
             self.policy = load_base_policy(path, device="cpu")
         except ValueError as e:
             raise ValueError(f"takeover policy {path!r}: {e}") from e
-        unknown = sorted(set(self.policy.config.input_features) - set(_OBS_KEYS.values()))
+        unknown = sorted(set(self.policy.config.input_features) - set(_ENV_FEATURES))
         if unknown:
             raise ValueError(
                 f"takeover policy {path!r} reads {unknown}; a takeover lead must read only "
-                f"{sorted(_OBS_KEYS.values())} (state-based PushT)"
+                f"{list(_ENV_FEATURES)} (state-based PushT)"
             )
         self.pre, self.post = make_pre_post_processors(self.policy.config, pretrained_path=path)
 
@@ -51,14 +51,10 @@ class PolicyLead:
 
     def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         import torch
+        from lerobot.envs.utils import preprocess_observation
 
-        batch = {
-            feat: torch.as_tensor(np.asarray(obs[key], dtype=np.float32))[None]
-            for key, feat in _OBS_KEYS.items()
-            if feat in self.policy.config.input_features
-        }
-        with torch.inference_mode():
-            action = self.post(self.policy.select_action(self.pre(batch)))
+        with torch.inference_mode():  # as lerobot-eval: env observation -> batch -> processors -> policy
+            action = self.post(self.policy.select_action(self.pre(preprocess_observation(obs))))
         return action[0].numpy().astype(np.float64)
 
 
