@@ -6,8 +6,8 @@
 #   act-continue FROM: 8 000 more steps from the ACT weights in FROM on $DATA (e.g. demonstrations merged with
 #     takeover episodes, see models/README.md), lr 1e-4 as the ACT recipe
 #   act-dagger: the shipped ACT base (models/pusht-act-state): 4 encoder / 2 decoder layers, no dropout, AdamW
-#     peak 5e-4 with cosine decay, 6 000 steps, on the demonstrations merged with one round of takeover
-#     episodes (DATA=data/pusht_act_dagger1 REPO=local/pusht_act_dagger1; how: models/README.md)
+#     peak 5e-4 with cosine decay, 12 000 steps, on the demonstrations merged with two rounds of takeover
+#     episodes (DATA=data/pusht_act_dagger2 REPO=local/pusht_act_dagger2; how: models/README.md)
 # Data: .venv/bin/dcdp-pusht-demos --root data/pusht_expert --episodes 500 --seed 0 --workers 2
 set -euo pipefail
 kind=$1; shift
@@ -49,10 +49,10 @@ case $kind in
       --policy.chunk_size=16 --policy.n_action_steps=8 --policy.dim_model=128 --policy.n_heads=4 \
       --policy.dim_feedforward=512 --policy.n_encoder_layers=4 --policy.n_decoder_layers=2 \
       --policy.n_vae_encoder_layers=2 --policy.latent_dim=16 --policy.pretrained_backbone_weights=null \
-      --policy.dropout=0.0 --batch_size=64 --steps=6000 --save_freq=2000 \
+      --policy.dropout=0.0 --batch_size=64 --steps=12000 --save_freq=4000 \
       --use_policy_training_preset=false --optimizer.type=adamw --optimizer.lr=5e-4 \
       --optimizer.weight_decay=1e-4 --optimizer.grad_clip_norm=10 --scheduler.type=cosine_decay_with_warmup \
-      --scheduler.num_warmup_steps=500 --scheduler.num_decay_steps=6000 --scheduler.peak_lr=5e-4 \
+      --scheduler.num_warmup_steps=500 --scheduler.num_decay_steps=12000 --scheduler.peak_lr=5e-4 \
       --scheduler.decay_lr=1e-5 --output_dir=${OUT:-runs/act_dagger} "$@" ;;
   *) echo "usage: $0 {diffusion|diffusion-continue FROM|act|act-continue FROM|act-dagger}" >&2; exit 2 ;;
 esac
