@@ -30,9 +30,12 @@ class PolicyLead:
     """
 
     def __init__(self, path: str) -> None:
+        from lerobot.envs.utils import preprocess_observation
         from lerobot.policies.factory import make_pre_post_processors
 
         from lerobot_dcdp.base_policy import load_base_policy
+
+        self._to_batch = preprocess_observation  # imported once here, not on every control step
 
         try:
             self.policy = load_base_policy(path, device="cpu")
@@ -51,10 +54,9 @@ class PolicyLead:
 
     def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         import torch
-        from lerobot.envs.utils import preprocess_observation
 
         with torch.inference_mode():  # as lerobot-eval: env observation -> batch -> processors -> policy
-            action = self.post(self.policy.select_action(self.pre(preprocess_observation(obs))))
+            action = self.post(self.policy.select_action(self.pre(self._to_batch(obs))))
         return action[0].numpy().astype(np.float64)
 
 
