@@ -84,8 +84,14 @@ def make_dcdp_config(base: Path, dataset_root: Path, **overrides):
 
     inp, out, _ = policy_features(dataset_root)
     inp = {k: v for k, v in inp.items() if v.type is not FeatureType.VISUAL}
+    # the paper's decoder path unless a test asks for correction="residual" (the config's default)
     params = dict(
-        feature_dim=32, n_heads=4, state_hidden_dim=32, encoder_hidden_dim=32, decoder_hidden_dim=32
+        feature_dim=32,
+        n_heads=4,
+        state_hidden_dim=32,
+        encoder_hidden_dim=32,
+        decoder_hidden_dim=32,
+        correction="reconstruct",
     )
     params.update(overrides)
     return DCDPConfig(

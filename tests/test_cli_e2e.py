@@ -45,6 +45,8 @@ def train_args(base: Path, data: Path, out: Path, steps: int, save_freq: int, ba
         "--wandb.enable=false",
         "--policy.feature_dim=32",
         "--policy.n_heads=4",
+        # plain demonstrations + the default residual correction: stage 1 synthesises the block's motion
+        "--policy.anchor_feature=observation.environment_state",
     ]
 
 

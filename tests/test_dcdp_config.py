@@ -31,15 +31,28 @@ def test_bad_values_name_the_field(field: str, value) -> None:
 
 def test_delta_indices_cover_history_and_executed_chunk() -> None:
     cfg = DCDPConfig(base_policy_path="x/y", device="cpu", n_history=5, n_action_steps=8)
-    assert cfg.observation_delta_indices == list(range(-4, 8))
-    assert cfg.action_delta_indices == list(range(8))
+    assert cfg.correction == "residual"  # the recipe that helps is the default
+    # residual: one control step t, the history t-7 .. t (plan time t-s for s < 8) and the actions around it
+    assert cfg.observation_delta_indices == list(range(-7, 1))
+    assert cfg.action_delta_indices == list(range(-7, 8))
+    paper = DCDPConfig(base_policy_path="x/y", device="cpu", correction="reconstruct")
+    assert paper.observation_delta_indices == list(range(-4, 8))
+    assert paper.action_delta_indices == list(range(8))
     opt = cfg.get_optimizer_preset()
     assert (opt.lr, opt.weight_decay, opt.grad_clip_norm) == (1e-4, 1e-4, 1.0)
 
 
 def test_horizon_longer_than_base_chunk(diffusion_base, demo_root) -> None:
-    with pytest.raises(ValueError, match="n_action_steps=9 exceeds the base's chunk"):
+    with pytest.raises(ValueError, match="n_action_steps=9 exceeds the base's chunk") as err:
         make_dcdp_policy(diffusion_base, demo_root, n_action_steps=9)
+    assert "--policy.n_action_steps between 1 and 8" in str(err.value)
+
+
+def test_execution_typo_suggests_the_closest_mode() -> None:
+    with pytest.raises(ValueError, match="did you mean 'closed_loop'"):
+        DCDPConfig(base_policy_path="x/y", device="cpu", execution="closed-loop")
+    with pytest.raises(ValueError, match="did you mean 'residual'"):
+        DCDPConfig(base_policy_path="x/y", device="cpu", correction="residul")
 
 
 def test_unknown_base_path(demo_root, tmp_path) -> None:

@@ -219,3 +219,20 @@ def test_predict_action_chunk_is_a_query(kind, diffusion_base, act_base, demo_ro
     torch.manual_seed(1)
     first = policy.select_action(dict(obs[0]))
     torch.testing.assert_close(chunk[:, 0], first)
+
+
+def test_corrector_weights_load_strictly(diffusion_base, demo_root, tmp_path) -> None:
+    from safetensors.torch import save_file
+
+    policy = make_dcdp_policy(diffusion_base, demo_root, correction="residual")
+    policy.save_pretrained(tmp_path)
+    weights = load_file(tmp_path / "model.safetensors")
+    dropped = sorted(k for k in weights if k.startswith("residual."))[-1]
+    save_file({k: v for k, v in weights.items() if k != dropped}, tmp_path / "model.safetensors")
+    with pytest.raises(ValueError, match=f"corrector weights.*{dropped}"):
+        DCDPPolicy.from_pretrained(tmp_path)
+    save_file({**weights, "decoder.extra": torch.zeros(2)}, tmp_path / "model.safetensors")
+    with pytest.raises(ValueError, match="decoder.extra"):
+        DCDPPolicy.from_pretrained(tmp_path)
+    save_file(weights, tmp_path / "model.safetensors")
+    DCDPPolicy.from_pretrained(tmp_path)  # the untouched file loads

@@ -49,6 +49,7 @@ def test_fastumi_to_act_base_to_dcdp_with_images(tmp_path) -> None:
             f"--policy.base_policy_path={base}",
             *common,
             f"--output_dir={tmp_path / 'dcdp'}",
+            "--policy.correction=reconstruct",  # no object pose in this data: the paper's image path
             "--policy.n_history=3",
             "--policy.n_action_steps=4",
             "--policy.feature_dim=32",

@@ -9,7 +9,14 @@ import pytest
 import torch
 from helpers import env_observations, make_dcdp_policy, training_batches
 
-from lerobot_dcdp.correction import anchor_actions, normalize, rigid_fit_2d, unnormalize
+from lerobot_dcdp.correction import (
+    action_range,
+    anchor_actions,
+    check_normalization,
+    normalize,
+    rigid_fit_2d,
+    unnormalize,
+)
 
 
 def _rotation(deg: float) -> torch.Tensor:
@@ -62,20 +69,36 @@ def test_anchor_actions_keeps_extra_dims_and_rejects_bad_shapes() -> None:
         rigid_fit_2d(torch.zeros(2, 4, 3), torch.zeros(2, 4, 3))
 
 
-@pytest.mark.parametrize("mode", ["MIN_MAX", "MEAN_STD", "IDENTITY"])
+@pytest.mark.parametrize("mode", ["MIN_MAX", "MEAN_STD", "IDENTITY", "QUANTILES", "QUANTILE10"])
 def test_normalize_round_trip(mode: str) -> None:
     stats = {
         "min": torch.tensor([0.0, 10.0]),
         "max": torch.tensor([512.0, 30.0]),
         "mean": torch.tensor([256.0, 20.0]),
         "std": torch.tensor([100.0, 2.0]),
+        "q01": torch.tensor([10.0, 11.0]),
+        "q99": torch.tensor([500.0, 29.0]),
+        "q10": torch.tensor([50.0, 12.0]),
+        "q90": torch.tensor([450.0, 28.0]),
     }
     x = torch.tensor([[0.0, 10.0], [512.0, 30.0], [100.0, 25.0]])
     torch.testing.assert_close(unnormalize(normalize(x, stats, mode), stats, mode), x)
     if mode == "MIN_MAX":
         torch.testing.assert_close(normalize(x, stats, mode)[:2], torch.tensor([[-1.0, -1.0], [1.0, 1.0]]))
-    with pytest.raises(ValueError, match="QUANTILES"):
-        normalize(x, stats, "QUANTILES")
+    if mode == "QUANTILES":  # LeRobot's rule: q01 -> -1, q99 -> 1
+        q = torch.stack([stats["q01"], stats["q99"]])
+        torch.testing.assert_close(normalize(q, stats, mode), torch.tensor([[-1.0, -1.0], [1.0, 1.0]]))
+        # the action range of a quantile-normalised base is its recorded min/max, normalised the same way
+        lo, hi = action_range(stats, mode, 2)
+        torch.testing.assert_close(lo, normalize(stats["min"], stats, mode))
+        torch.testing.assert_close(hi, normalize(stats["max"], stats, mode))
+    with pytest.raises(ValueError, match="SOMETHING_ELSE"):
+        normalize(x, stats, "SOMETHING_ELSE")
+    with pytest.raises(ValueError, match="'observation.x'.*SOMETHING_ELSE"):
+        check_normalization("observation.x", "SOMETHING_ELSE", stats)
+    if mode == "QUANTILE10":
+        with pytest.raises(ValueError, match=r"lack \['q10'\]"):
+            check_normalization("action", mode, {"q90": stats["q90"]})
 
 
 def test_anchored_labels_follow_the_block_with_lookahead() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
 
 from lerobot.configs import NormalizationMode, PreTrainedConfig
@@ -11,6 +12,15 @@ from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
 EXECUTION_MODES = ("dcdp", "open_loop", "closed_loop", "temporal_ensemble", "object_anchored")
 CORRECTIONS = ("reconstruct", "residual")
 BACKBONES = ("auto", "mlp", "resnet18")
+
+
+def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
+    """Refuse a value outside ``choices``, suggesting the closest valid one."""
+    if value in choices:
+        return
+    close = difflib.get_close_matches(str(value).replace("-", "_"), choices, n=1, cutoff=0.5)
+    hint = f" -- did you mean {close[0]!r}? (--policy.{name}={close[0]})" if close else ""
+    raise ValueError(f"{name} must be one of {choices}, got {value!r}{hint}")
 
 
 @PreTrainedConfig.register_subclass("dcdp")
@@ -44,11 +54,14 @@ class DCDPConfig(PreTrainedConfig):
             return n_action_steps + d actions. Every execution mode honours it; ``object_anchored`` and
             ``dcdp`` measure the change since that observation, which is what they correct.
         te_weight: Weight of the newest prediction in ``temporal_ensemble`` (authors: 0.5).
-        correction: How the corrector produces action s of a chunk. ``reconstruct`` is the paper's recipe:
-            the GRU decoder re-decodes the action from z and F_{t+s} (trained to reconstruct demonstration
-            chunks). ``residual`` (ours, see docs/METHOD.md): ``a_s = plan_s + delta(z, plan_s, F_{t+s},
-            change since plan time, e_s)`` with delta's last layer zero-initialised (a fresh corrector is
-            exactly open loop), trained on recorded corrections of stale chunks (``dcdp-record-corrections``).
+        correction: How the corrector produces action s of a chunk. ``residual`` (default; ours, see
+            docs/METHOD.md): ``a_s = plan_s + delta(z, plan_s, F_{t+s}, change since plan time, e_s)`` with
+            delta's last layer zero-initialised (a fresh corrector is exactly open loop). It trains on recorded
+            corrections of stale chunks (a dataset with ``plan_feature``, from ``dcdp-record-corrections``) or,
+            on plain demonstrations, on synthesised object motion (needs ``anchor_feature``; see the
+            ``motion_*`` fields). ``reconstruct`` is the paper's recipe (``configs/policy/dcdp_paper.json``):
+            the GRU decoder re-decodes the action from z and F_{t+s}, trained to reconstruct demonstration
+            chunks; measured to make the base worse on PushT (docs/ANALYSIS.md).
         anchor_feature: Observation key holding an object's keypoints as xy pairs, in the same frame as the
             first two action dims (PushT: ``observation.environment_state``). Needed by ``object_anchored``.
         plan_feature: Dataset key of the chunk the base planned at the chunk start, (L, A) raw actions, in
@@ -59,6 +72,16 @@ class DCDPConfig(PreTrainedConfig):
         anchor_input: ``residual`` only: also give the head the ``object_anchored`` proposal for step s (the
             plan carried along with the anchor keypoints' rigid motion), as a change from ``plan_s``. The head
             still starts at zero (open loop) and learns how much of the proposal to take, and what else.
+        motion_max_speed: ``residual`` on plain demonstrations: the largest synthesised object speed, in the
+            anchor keypoints' raw units per control step (speeds are drawn uniformly up to it, in any
+            direction). ``None``: 0.6 % of the anchor keypoints' extent in the base's statistics per step
+            (PushT: ~2.5 px/step).
+        motion_max_turn_deg: ``residual`` on plain demonstrations: the largest synthesised turn rate of the
+            object about its keypoint centroid, degrees per control step (uniform in [-max, max]).
+        motion_static_fraction: ``residual`` on plain demonstrations: share of synthesised samples without
+            motion, whose label is the plan itself (the corrector learns to leave a still scene alone).
+        motions_per_sample: ``residual`` on plain demonstrations: independent motions drawn per dataset
+            sample (the batch is repeated this many times).
         backbone: Per-frame backbone: ``mlp`` for state/keypoint vectors, ``resnet18`` for images, ``auto``
             picks ``resnet18`` when the inputs hold images, else ``mlp``.
         observation_features: Observation keys the corrector reads; empty = every observation input of the
@@ -95,12 +118,16 @@ class DCDPConfig(PreTrainedConfig):
     execution: str = "dcdp"
     inference_delay: int = 0
     te_weight: float = 0.5
-    correction: str = "reconstruct"
+    correction: str = "residual"
     anchor_feature: str | None = None
     plan_feature: str = "observation.dcdp_plan"
     plan_step_feature: str = "observation.dcdp_plan_step"
     change_scale: float = 10.0
     anchor_input: bool = False
+    motion_max_speed: float | None = None
+    motion_max_turn_deg: float = 0.5
+    motion_static_fraction: float = 0.25
+    motions_per_sample: int = 4
 
     backbone: str = "auto"
     observation_features: list[str] = field(default_factory=list)
@@ -151,10 +178,8 @@ class DCDPConfig(PreTrainedConfig):
             raise ValueError(f"n_action_steps must be >= 1, got {self.n_action_steps}")
         if self.inference_delay < 0:
             raise ValueError(f"inference_delay must be >= 0 control steps, got {self.inference_delay}")
-        if self.execution not in EXECUTION_MODES:
-            raise ValueError(f"execution must be one of {EXECUTION_MODES}, got {self.execution!r}")
-        if self.correction not in CORRECTIONS:
-            raise ValueError(f"correction must be one of {CORRECTIONS}, got {self.correction!r}")
+        _check_choice("execution", self.execution, EXECUTION_MODES)
+        _check_choice("correction", self.correction, CORRECTIONS)
         if self.execution == "object_anchored" and not self.anchor_feature:
             raise ValueError(
                 "execution='object_anchored' needs anchor_feature: the observation key holding the object's "
@@ -162,12 +187,19 @@ class DCDPConfig(PreTrainedConfig):
             )
         if self.anchor_input and not (self.anchor_feature and self.correction == "residual"):
             raise ValueError("anchor_input needs correction='residual' and an anchor_feature")
+        if self.motion_max_speed is not None and not self.motion_max_speed >= 0:
+            raise ValueError(f"motion_max_speed must be >= 0 (or None for the default), got {self.motion_max_speed}")
+        if not self.motion_max_turn_deg >= 0:
+            raise ValueError(f"motion_max_turn_deg must be >= 0, got {self.motion_max_turn_deg}")
+        if not 0.0 <= self.motion_static_fraction <= 1.0:
+            raise ValueError(f"motion_static_fraction must be in [0, 1], got {self.motion_static_fraction}")
+        if self.motions_per_sample < 1:
+            raise ValueError(f"motions_per_sample must be >= 1, got {self.motions_per_sample}")
         if not self.change_scale > 0:
             raise ValueError(f"change_scale must be > 0, got {self.change_scale}")
         if not 0.0 < self.te_weight <= 1.0:
             raise ValueError(f"te_weight must be in (0, 1], got {self.te_weight}")
-        if self.backbone not in BACKBONES:
-            raise ValueError(f"backbone must be one of {BACKBONES}, got {self.backbone!r}")
+        _check_choice("backbone", self.backbone, BACKBONES)
         for name in (
             "feature_dim",
             "state_hidden_dim",
@@ -199,10 +231,11 @@ class DCDPConfig(PreTrainedConfig):
 
     @property
     def action_delta_indices(self) -> list[int]:
-        """``reconstruct``: actions t .. t+H-1 (the executed part of a chunk); ``residual``: the action
-        at t."""
+        """``reconstruct``: actions t .. t+H-1 (the executed part of a chunk); ``residual``: actions
+        t-H+1 .. t+H-1 (the target is the one at t; on plain demonstrations, the demonstration's own chunk
+        planned at t-s is the plan, for any step s < H)."""
         if self.correction == "residual":
-            return [0]
+            return list(range(1 - self.n_action_steps, self.n_action_steps))
         return list(range(self.n_action_steps))
 
     @property

@@ -51,26 +51,62 @@ def sliding_windows(frames: Tensor, window: int) -> Tensor:
     return frames.unfold(1, window, 1).movedim(-1, 2)
 
 
+#: LeRobot's normalisation modes and the statistics each maps to [-1, 1] (``MEAN_STD`` standardises instead)
+RANGE_STATS = {"MIN_MAX": ("min", "max"), "QUANTILES": ("q01", "q99"), "QUANTILE10": ("q10", "q90")}
+NORMALIZATION_MODES = ("MIN_MAX", "MEAN_STD", "QUANTILES", "QUANTILE10", "IDENTITY")
+
+
+def check_normalization(key: str, mode: str, stats: dict[str, Tensor]) -> None:
+    """Refuse a mode this module cannot reproduce, or one whose statistics are missing, naming the feature."""
+    if mode not in NORMALIZATION_MODES:
+        raise ValueError(
+            f"the base normalises {key!r} with mode {mode!r}, which dcdp cannot reproduce "
+            f"(supported: {', '.join(NORMALIZATION_MODES)})"
+        )
+    needed = RANGE_STATS.get(mode, ("mean", "std") if mode == "MEAN_STD" else ())
+    missing = [k for k in needed if k not in stats]
+    if missing:
+        raise ValueError(f"the base normalises {key!r} with {mode} but its saved statistics lack {missing}")
+
+
 def normalize(x: Tensor, stats: dict[str, Tensor], mode: str) -> Tensor:
-    """LeRobot's normalisation of one feature: ``MIN_MAX`` to [-1, 1], ``MEAN_STD``, or ``IDENTITY``."""
-    if mode == "MIN_MAX":
-        return 2.0 * (x - stats["min"]) / (stats["max"] - stats["min"]).clamp_min(1e-8) - 1.0
+    """LeRobot's normalisation of one feature: ``MIN_MAX`` / ``QUANTILES`` (q01-q99) / ``QUANTILE10``
+    (q10-q90) to [-1, 1], ``MEAN_STD``, or ``IDENTITY``."""
+    if mode in RANGE_STATS:
+        lo, hi = (stats[k] for k in RANGE_STATS[mode])
+        return 2.0 * (x - lo) / (hi - lo).clamp_min(1e-8) - 1.0
     if mode == "MEAN_STD":
         return (x - stats["mean"]) / stats["std"].clamp_min(1e-8)
     if mode == "IDENTITY":
         return x
-    raise ValueError(f"unknown normalisation mode {mode!r} (MIN_MAX, MEAN_STD or IDENTITY)")
+    raise ValueError(f"unknown normalisation mode {mode!r} ({', '.join(NORMALIZATION_MODES)})")
 
 
 def unnormalize(x: Tensor, stats: dict[str, Tensor], mode: str) -> Tensor:
     """Inverse of :func:`normalize`."""
-    if mode == "MIN_MAX":
-        return (x + 1.0) * 0.5 * (stats["max"] - stats["min"]).clamp_min(1e-8) + stats["min"]
+    if mode in RANGE_STATS:
+        lo, hi = (stats[k] for k in RANGE_STATS[mode])
+        return (x + 1.0) * 0.5 * (hi - lo).clamp_min(1e-8) + lo
     if mode == "MEAN_STD":
         return x * stats["std"].clamp_min(1e-8) + stats["mean"]
     if mode == "IDENTITY":
         return x
-    raise ValueError(f"unknown normalisation mode {mode!r} (MIN_MAX, MEAN_STD or IDENTITY)")
+    raise ValueError(f"unknown normalisation mode {mode!r} ({', '.join(NORMALIZATION_MODES)})")
+
+
+def action_range(stats: dict[str, Tensor], mode: str, action_dim: int) -> tuple[Tensor, Tensor]:
+    """Range (low, high) of base-normalised actions, mapped to [-1, 1] before encoding (paper: min-max).
+
+    The recorded min/max of the actions, normalised as the base does, when the statistics hold them; else
+    [-1, 1] for the range modes (``MIN_MAX``, ``QUANTILES``, ``QUANTILE10``). ``MEAN_STD`` and ``IDENTITY``
+    without min/max cannot be bounded and are refused.
+    """
+    if "min" in stats and "max" in stats:
+        lo, hi = normalize(stats["min"], stats, mode), normalize(stats["max"], stats, mode)
+        return torch.minimum(lo, hi), torch.maximum(lo, hi)
+    if mode in RANGE_STATS or not stats:
+        return -torch.ones(action_dim), torch.ones(action_dim)
+    raise ValueError(f"the base's action statistics ({mode}) hold no min/max: the action range is unknown")
 
 
 def rigid_fit_2d(before: Tensor, after: Tensor) -> tuple[Tensor, Tensor]:

@@ -14,6 +14,7 @@ loop, temporal ensemble) are other execution modes of this same loop.
 
 from __future__ import annotations
 
+import math
 import os
 from collections import deque
 from pathlib import Path
@@ -34,7 +35,9 @@ from lerobot_dcdp.base_policy import (
 from lerobot_dcdp.chunk_sources import ChunkSource, make_chunk_source
 from lerobot_dcdp.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.correction import (
+    action_range,
     anchor_actions,
+    check_normalization,
     from_unit_range,
     normalize,
     rigid_fit_2d,
@@ -44,8 +47,12 @@ from lerobot_dcdp.correction import (
     to_unit_range,
     unnormalize,
 )
+from lerobot_dcdp.motion_synthesis import draw_motions, keypoint_extent, move_window
 from lerobot_dcdp.dynamics import DynamicFeatureExtractor, FrameEncoder, diff_loss
 from lerobot_dcdp.residual import ResidualHead, change_input
+
+
+NORMALIZER_STATS = ("min", "max", "mean", "std", "q01", "q99", "q10", "q90")
 
 
 class BaseMismatchError(ValueError):
@@ -141,9 +148,11 @@ class DCDPPolicy(PreTrainedPolicy):
         if dataset_stats is not None:
             self._set_raw_input_scaling(state_dims, dataset_stats)
         self._base_stats = {  # only what (un)normalising needs: a few tensors touched every step
-            key: (mode, {k: v for k, v in stats.items() if k in ("min", "max", "mean", "std")})
+            key: (mode, {k: v for k, v in stats.items() if k in NORMALIZER_STATS})
             for key, (mode, stats) in load_base_stats(config.base_policy_path, config.pretrained_path).items()
         }
+        for key, (mode, stats) in self._base_stats.items():
+            check_normalization(key, mode, stats)
         low, high = self._action_range(action_dim)
         self.register_buffer("action_low", low, persistent=False)
         self.register_buffer("action_high", high, persistent=False)
@@ -178,7 +187,17 @@ class DCDPPolicy(PreTrainedPolicy):
             )
         if config.pretrained_path is None and os.path.isdir(str(pretrained_name_or_path)):
             config.pretrained_path = pretrained_name_or_path
-        policy = super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
+        kwargs["strict"] = True  # a corrector key that fails to load would silently leave a head at zero
+        try:
+            policy = super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
+        except RuntimeError as err:
+            if "Missing key" not in str(err) and "Unexpected key" not in str(err):
+                raise
+            raise ValueError(
+                f"corrector weights in {pretrained_name_or_path} do not match config.json "
+                f"({str(err).strip().splitlines()[-1].strip()}): it was saved by another dcdp version or "
+                "config; retrain it or restore the matching config.json"
+            ) from err
         policy.warm_up_kernel()
         return policy
 
@@ -195,7 +214,8 @@ class DCDPPolicy(PreTrainedPolicy):
             raise ValueError(
                 f"n_action_steps={cfg.n_action_steps} exceeds the base's chunk: "
                 f"base type {bcfg.type!r} returns "
-                f"{self.source.chunk_length} actions per call"
+                f"{self.source.chunk_length} actions per call; use --policy.n_action_steps between 1 and "
+                f"{self.source.chunk_length}"
             )
         if cfg.n_action_steps + cfg.inference_delay > self.source.max_length:
             raise ValueError(
@@ -249,15 +269,8 @@ class DCDPPolicy(PreTrainedPolicy):
 
     def _action_range(self, action_dim: int) -> tuple[Tensor, Tensor]:
         """Range of the base-normalised actions, mapped to [-1, 1] before encoding (paper: min-max)."""
-        ones = torch.ones(action_dim)
         mode, stats = self._base_stats.get(ACTION, ("IDENTITY", {}))
-        if mode == "MIN_MAX" or "min" not in stats:
-            return -ones, ones
-        lo, hi = stats["min"], stats["max"]
-        if mode == "MEAN_STD":
-            std = stats["std"].clamp_min(1e-8)
-            lo, hi = (lo - stats["mean"]) / std, (hi - stats["mean"]) / std
-        return lo, hi
+        return action_range(stats, mode, action_dim)
 
     def _norm(self, key: str, x: Tensor, inverse: bool = False) -> Tensor:
         """(Un)normalise feature ``key`` exactly as the base's saved normaliser does."""
@@ -351,16 +364,18 @@ class DCDPPolicy(PreTrainedPolicy):
             "alpha": float(self.extractor.alpha.detach()),
         }
 
+    def _current_action(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
+        """The action at t (B, A) of a residual sample (actions t-H+1 .. t+H-1) and whether it is real (B,)."""
+        actions = batch[ACTION]
+        actions = actions.unsqueeze(1) if actions.dim() == 2 else actions
+        now = min(self.config.n_action_steps - 1, actions.shape[1] - 1)
+        pad = batch.get("action_is_pad")
+        valid = ~pad.reshape(pad.shape[0], -1)[:, now] if pad is not None else torch.ones_like(actions[:, 0, 0])
+        return actions[:, now], valid.to(actions.dtype)
+
     def _recorded_plan(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
         """The recorded chunk (B, H, A), base-normalised, and each sample's step s (B,) in it."""
         cfg = self.config
-        missing = [k for k in (cfg.plan_feature, cfg.plan_step_feature) if k not in batch]
-        if missing:
-            raise ValueError(
-                f"correction='residual' trains on recorded corrections, but the batch has no {missing}: "
-                "record them with dcdp-record-corrections (or use --policy.correction=reconstruct, the "
-                "paper's recipe, on plain demonstrations)"
-            )
         plan, step = batch[cfg.plan_feature], batch[cfg.plan_step_feature]
         # the observation delta indices stack a time axis: the current frame is the last one (a (1,)-shaped
         # feature arrives as (B, K), a (L, A) one as (B, K, L, A))
@@ -376,13 +391,105 @@ class DCDPPolicy(PreTrainedPolicy):
             raise ValueError(f"{cfg.plan_step_feature} must lie in [0, {cfg.n_action_steps - 1}]")
         return self._norm(ACTION, plan[:, : cfg.n_action_steps]), step
 
+    def _motion_max_speed(self) -> float:
+        """``motion_max_speed``, or its default from the anchor keypoints' extent in the base's statistics."""
+        cfg = self.config
+        if cfg.motion_max_speed is not None:
+            return cfg.motion_max_speed
+        _, stats = self._base_stats.get(cfg.anchor_feature, ("IDENTITY", {}))
+        if not stats:
+            raise ValueError(
+                f"the base's normaliser has no statistics for anchor_feature {cfg.anchor_feature!r}: set "
+                "--policy.motion_max_speed (raw anchor units per control step) to synthesise object motion"
+            )
+        return 0.006 * keypoint_extent(stats)
+
+    def _synthesised_sample(self, batch: dict[str, Tensor]) -> tuple[dict, Tensor, Tensor, Tensor, Tensor]:
+        """A plain demonstration sample with synthesised object motion (motion_synthesis.py).
+
+        Each sample is repeated ``motions_per_sample`` times; each copy gets a step s (plan time t-s, inside the
+        episode), the demonstration's own chunk planned at t-s as the plan (or the base's chunk planned then,
+        when ``plan_feature`` holds one per frame), its own rigid motion of the anchor keypoints through the
+        window, and the plan's action s carried with that motion as the target.
+
+        Returns:
+            The moved batch, the plan (B', H, A) and step s (B',), the target (B', A) (all base-normalised)
+            and its validity (B',).
+        """
+        cfg = self.config
+        horizon, key = cfg.n_action_steps, cfg.anchor_feature
+        if key not in cfg.corrector_features:
+            raise ValueError(
+                f"synthesising object motion moves {key!r}, which the corrector does not read: add it to "
+                f"--policy.observation_features (now {cfg.corrector_features})"
+            )
+        images = [k for k in self._frame_keys if cfg.input_features[k].type is FeatureType.VISUAL]
+        if images:
+            raise ValueError(
+                f"synthesised object motion moves only {key!r}, not the images {images}: train an image "
+                "corrector on recorded corrections (dcdp-record-corrections) or read vector features only "
+                "(--policy.observation_features)"
+            )
+        reps = cfg.motions_per_sample
+        batch = {k: (v.repeat_interleave(reps, 0) if isinstance(v, Tensor) else v) for k, v in batch.items()}
+        kp = self._norm(key, batch[key], inverse=True)
+        if kp.dim() != 3:
+            raise ValueError("correction='residual' needs the observation history of the config's delta indices")
+        b, k = kp.shape[:2]
+        actions = batch[ACTION]
+        if actions.dim() != 3 or actions.shape[1] != 2 * horizon - 1:
+            raise ValueError(
+                f"synthesised corrections need actions t-{horizon - 1} .. t+{horizon - 1} per sample "
+                f"(the residual config's action delta indices), got shape {tuple(actions.shape[1:])}"
+            )
+        # plan time t-s must lie inside the episode: s <= the number of real frames before t
+        pad = batch.get(f"{key}_is_pad")
+        history = (~pad).sum(1) - 1 if pad is not None else torch.full((b,), k - 1, device=kp.device)
+        limit = torch.minimum(history.clamp_min(0), torch.full_like(history, min(horizon, k) - 1))
+        step = (torch.rand(b, device=kp.device) * (limit + 1)).floor().long().clamp_max(limit)
+        rows = torch.arange(b, device=kp.device)
+        if cfg.plan_feature in batch:  # the base's chunk planned at each frame (dcdp-precompute-plans)
+            per_frame = batch[cfg.plan_feature]
+            plan = self._norm(ACTION, per_frame[rows, k - 1 - step][:, :horizon])
+        else:  # the demonstration's own chunk from t-s
+            cols = (horizon - 1 - step).unsqueeze(1) + torch.arange(horizon, device=kp.device)
+            plan = actions[rows.unsqueeze(1), cols]
+        velocity, turn = draw_motions(
+            b, self._motion_max_speed(), math.radians(cfg.motion_max_turn_deg), cfg.motion_static_fraction,
+            device=kp.device,
+        )
+        moved, rot, shift = move_window(kp.reshape(b, k, -1, 2), k - 1 - step, velocity, turn)
+        batch[key] = self._norm(key, moved.reshape(kp.shape))
+        plan_s = plan[rows, step]
+        moving = (velocity != 0).any(-1) | (turn != 0)
+        carried = self._norm(ACTION, anchor_actions(self._norm(ACTION, plan_s, inverse=True), rot, shift))
+        target = torch.where(moving.unsqueeze(-1), carried, plan_s)  # a still scene keeps the plan exactly
+        _, valid = self._current_action(batch)
+        return batch, plan, step, target, valid
+
     def _residual_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """One control step t per sample: ``MSE(plan_s + delta, a_t) + lambda_KL KL + lambda_diff L_diff``.
 
         The frames are t-K+1 .. t (K = max(M, H)): the last M feed F_t, the one at t-s is the plan-time frame.
+        The plan, step and target come from recorded corrections when the batch holds them, else from
+        synthesised object motion on the demonstration (:meth:`_synthesised_sample`).
         """
         cfg = self.config
-        plan, step = self._recorded_plan(batch)
+        if cfg.plan_feature in batch and cfg.plan_step_feature in batch:
+            plan, step = self._recorded_plan(batch)
+            target, valid = self._current_action(batch)
+            source = "recorded"
+        elif cfg.anchor_feature and cfg.anchor_feature in batch:
+            batch, plan, step, target, valid = self._synthesised_sample(batch)
+            source = "synthesised"
+        else:
+            raise ValueError(
+                "correction='residual' trains on recorded corrections or on demonstrations with synthesised "
+                f"object motion, but the batch has neither {cfg.plan_feature!r} + {cfg.plan_step_feature!r} "
+                "(record them with dcdp-record-corrections) nor an anchor feature: name the object's xy "
+                "keypoints with --policy.anchor_feature=<observation key> (or use "
+                "--config_path=configs/policy/dcdp_paper.json, the paper's reconstruction recipe)"
+            )
         frames, vec = self.frame_encoder.encode({k: batch[k] for k in self._frame_keys})  # (B, K, d)
         if frames.dim() != 3:
             raise ValueError(
@@ -412,13 +519,9 @@ class DCDPPolicy(PreTrainedPolicy):
             )
             change = torch.cat([change, cfg.change_scale * (proposal - plan_s)], dim=-1)
         delta = self.residual(z, plan_s, feature, change, step)
-        target = to_unit_range(batch[ACTION].reshape(plan_s.shape), self.action_low, self.action_high)
+        target = to_unit_range(target.reshape(plan_s.shape), self.action_low, self.action_high)
         extra = {"anchor_gap": ((proposal - target) ** 2).mean().item()} if cfg.anchor_input else {}
-        valid = (
-            (~batch["action_is_pad"].reshape(-1)).to(delta.dtype).unsqueeze(-1)
-            if "action_is_pad" in batch
-            else torch.ones_like(delta[:, :1])
-        )
+        valid = valid.unsqueeze(-1)
         denom = (valid.sum() * delta.shape[-1]).clamp_min(1.0)
         recon = (((plan_s + delta - target) ** 2) * valid).sum() / denom
         kl = kl_to_standard_normal(mu, logvar)
@@ -429,6 +532,7 @@ class DCDPPolicy(PreTrainedPolicy):
             "plan_gap": ((((plan_s - target) ** 2) * valid).sum() / denom).item(),
             "kl_loss": kl.item(),
             "diff_loss": l_diff.item(),
+            "synthesised": float(source == "synthesised"),
             **extra,
         }
 
