@@ -1,15 +1,23 @@
 """Wrap any pretrained chunking policy (Diffusion Policy, ACT, ...) in a DCDP corrector, all from Python.
 
 1. ``make_policy`` builds a ``dcdp`` policy around the frozen base (features from the dataset);
-2. its corrector trains for a few steps on a LeRobotDataset: the policy's ``forward`` + its optimizer preset;
+2. its corrector trains for a few steps on a LeRobotDataset: the policy's ``forward`` + its optimizer preset.
+   With the default ``--correction residual`` on plain demonstrations, stage 1 synthesises the object's
+   motion after plan time and learns to carry the plan along with it: name the object's xy keypoints with
+   ``--anchor-feature`` (a dataset recorded by ``dcdp-record-corrections`` needs no anchor). ``reconstruct``
+   is the paper's recipe, measured to make the base worse (docs/ANALYSIS.md);
 3. the corrector is saved (``lerobot-eval --policy.path=OUT`` loads it) and run in every execution mode
    on one recorded episode: the actions it takes from the recorded observations, their distance to the
    recorded actions, and the time per step.
 
+This is the Python view of what ``lerobot-train --policy.type=dcdp`` does (README: "Wrap your own policy");
+use that command for real runs: it checkpoints and resumes (``--resume=true``).
+
 Example (the shipped PushT base on the expert demonstrations)::
 
     python examples/wrap_your_policy.py models/pusht-diffusion-state \\
-        --repo-id local/pusht_expert --root data/pusht_expert --steps 200 --out runs/my_corrector
+        --repo-id local/pusht_expert --root data/pusht_expert --steps 200 --out runs/my_corrector \\
+        --anchor-feature observation.environment_state
 """
 
 from __future__ import annotations
@@ -25,7 +33,7 @@ from lerobot.datasets.factory import resolve_delta_timestamps
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 
 import lerobot_policy_dcdp  # noqa: F401  (registers the `dcdp` policy type with LeRobot)
-from lerobot_dcdp.configuration_dcdp import EXECUTION_MODES, DCDPConfig
+from lerobot_dcdp.configuration_dcdp import CORRECTIONS, EXECUTION_MODES, DCDPConfig
 
 
 def train_corrector(
@@ -121,12 +129,29 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--batch-size", type=int, default=32)
     p.add_argument("--feature-dim", type=int, default=128, help="corrector width (32 for a quick try)")
-    p.add_argument("--anchor-feature", default=None, help="object keypoints key: enables object_anchored")
+    p.add_argument(
+        "--anchor-feature",
+        default=None,
+        help="object xy keypoints key: synthesised motion for `residual` on demonstrations, object_anchored",
+    )
+    p.add_argument(
+        "--correction",
+        choices=CORRECTIONS,
+        default="residual",
+        help="residual (default: plan + learned correction) or reconstruct (paper; measured to hurt)",
+    )
     args = p.parse_args(argv)
     if not (args.base / "config.json").is_file():
         p.error(f"{args.base} is not a pretrained policy directory (no config.json)")
     if args.steps < 1 or args.batch_size < 1:
         p.error("--steps and --batch-size must be >= 1")
+    if args.correction == "residual" and not args.anchor_feature:
+        meta = LeRobotDatasetMetadata(args.repo_id, root=args.root)
+        if "observation.dcdp_plan" not in meta.features:
+            p.error(
+                "--correction residual on plain demonstrations needs --anchor-feature (the observation key "
+                "holding the object's xy keypoints), or a dataset recorded by dcdp-record-corrections"
+            )
     heads = 8 if args.feature_dim % 8 == 0 else 1
     corrector = train_corrector(
         args.base,
@@ -138,6 +163,9 @@ def main(argv: list[str] | None = None) -> None:
         feature_dim=args.feature_dim,
         n_heads=heads,
         anchor_feature=args.anchor_feature,
+        correction=args.correction,
+        # synthesised motion moves the anchor keypoints only: the corrector reads those
+        observation_features=[args.anchor_feature] if args.anchor_feature else [],
     )
     print(f"corrector saved to {corrector}")
     run_every_mode(corrector, args.repo_id, args.root)

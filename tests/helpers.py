@@ -114,15 +114,14 @@ def make_dcdp_policy(base: Path, dataset_root: Path, seed: int = 0, **overrides)
 
 def training_batches(policy, dataset_root: Path, batch_size: int = 16, seed: int = 0):
     """Endless normalised training batches with the policy's delta timestamps, through its processors."""
+    from lerobot.datasets.factory import resolve_delta_timestamps
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
 
     cfg = policy.config
     meta = LeRobotDatasetMetadata("local/test", root=dataset_root)
-    obs_keys = [k for k in meta.features if k.startswith("observation.") and k in cfg.input_features]
-    dt = {k: [i / meta.fps for i in cfg.observation_delta_indices] for k in obs_keys}
-    dt["action"] = [i / meta.fps for i in cfg.action_delta_indices]
+    dt = resolve_delta_timestamps(cfg, meta)  # as lerobot-train builds its dataset
     ds = LeRobotDataset("local/test", root=dataset_root, delta_timestamps=dt)
     pre, _ = make_dcdp_pre_post_processors(cfg)
     gen = torch.Generator().manual_seed(seed)

@@ -39,7 +39,7 @@ def test_delta_indices_cover_history_and_executed_chunk() -> None:
     assert paper.observation_delta_indices == list(range(-4, 8))
     assert paper.action_delta_indices == list(range(8))
     opt = cfg.get_optimizer_preset()
-    assert (opt.lr, opt.weight_decay, opt.grad_clip_norm) == (1e-4, 1e-4, 1.0)
+    assert (opt.lr, opt.weight_decay, opt.grad_clip_norm) == (1e-3, 1e-4, 1.0)
 
 
 def test_horizon_longer_than_base_chunk(diffusion_base, demo_root) -> None:
@@ -58,6 +58,19 @@ def test_execution_typo_suggests_the_closest_mode() -> None:
 def test_unknown_base_path(demo_root, tmp_path) -> None:
     with pytest.raises(ValueError, match="base_policy_path"):
         make_dcdp_policy(tmp_path / "nowhere" / "deep" / "x", demo_root)
+
+
+def test_a_relative_base_missing_here_names_the_folder_and_the_fix(demo_root, tmp_path, monkeypatch) -> None:
+    """``models/x`` looks like a Hub id: offline, the error names where it looked and what to pass."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    with pytest.raises(ValueError, match="is not a local pretrained_model directory") as err:
+        make_dcdp_policy("models/pusht-diffusion-state", demo_root)
+    msg = str(err.value)
+    assert (
+        str((tmp_path / "models" / "pusht-diffusion-state").resolve()) in msg
+        and "Fix: pass the base's absolute path" in msg
+    )
 
 
 def test_feature_mismatch_names_the_feature(diffusion_base, demo_root) -> None:

@@ -1,4 +1,4 @@
-"""Stage 1 on plain demonstrations: synthesised object motion (pure math) and the residual loss built on it."""
+"""Stage 1 on plain demonstrations: synthesised object motion (pure math) and the residual loss on it."""
 
 from __future__ import annotations
 
@@ -36,11 +36,15 @@ def test_rotation_turns_about_the_plan_time_centroid_and_the_label_is_the_fitted
     kp = torch.tensor([[[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]]], dtype=torch.float64)
     kp = kp.unsqueeze(1).repeat(1, 5, 1, 1) + 100.0  # a still square, 5 frames
     rate = math.radians(3.0)
-    moved, rot, t = move_window(kp, torch.tensor([2]), torch.tensor([[1.0, -2.0]]).double(), torch.tensor([rate], dtype=torch.float64))
+    moved, rot, t = move_window(
+        kp, torch.tensor([2]), torch.tensor([[1.0, -2.0]]).double(), torch.tensor([rate], dtype=torch.float64)
+    )
     # rigid: distances between keypoints unchanged; the centroid moves by j * v only
     for j in range(5):
         torch.testing.assert_close(torch.cdist(moved[0, j], moved[0, j]), torch.cdist(kp[0, j], kp[0, j]))
-        torch.testing.assert_close(moved[0, j].mean(0), kp[0, j].mean(0) + (j - 2) * torch.tensor([1.0, -2.0]).double())
+        torch.testing.assert_close(
+            moved[0, j].mean(0), kp[0, j].mean(0) + (j - 2) * torch.tensor([1.0, -2.0]).double()
+        )
     # what the object_anchored rule would estimate from plan time to now is the label's motion
     r_fit, t_fit = rigid_fit_2d(kp[:, 2], moved[:, -1])
     torch.testing.assert_close(r_fit, rot)
@@ -103,8 +107,14 @@ def test_synthesised_target_is_the_plan_carried_with_the_observed_motion(diffusi
     """What the loss trains toward: the demonstration's action at t moved by the synthesised rigid motion
     between the demonstration's frame t and the moved one (the object's own pushes since plan time are not
     in the label: only the motion the world added)."""
-    policy = _policy(diffusion_base, demo_root, motion_static_fraction=0.0, motion_max_speed=4.0,
-                     motion_max_turn_deg=2.0, motions_per_sample=2)
+    policy = _policy(
+        diffusion_base,
+        demo_root,
+        motion_static_fraction=0.0,
+        motion_max_speed=4.0,
+        motion_max_turn_deg=2.0,
+        motions_per_sample=2,
+    )
     batch = next(training_batches(policy, demo_root, batch_size=6))
     torch.manual_seed(3)
     moved, plan, step, target, valid = policy._synthesised_sample(batch)
@@ -156,7 +166,10 @@ def test_plain_demonstrations_without_an_anchor_name_the_fix(diffusion_base, dem
 
 def test_synthesis_refuses_an_anchor_the_corrector_does_not_read(diffusion_base, demo_root) -> None:
     policy = make_dcdp_policy(
-        diffusion_base, demo_root, correction="residual", anchor_feature=KEY,
+        diffusion_base,
+        demo_root,
+        correction="residual",
+        anchor_feature=KEY,
         observation_features=["observation.state"],
     )
     batch = next(training_batches(policy, demo_root, batch_size=4))

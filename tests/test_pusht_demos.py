@@ -75,14 +75,14 @@ def test_refuses_eval_seeds_and_foreign_folders_even_with_force(tmp_path) -> Non
     assert sorted(p.name for p in tmp_path.iterdir()) == ["y"]
 
 
-def test_force_replaces_an_earlier_output_and_sweeps_stale_tmp(tmp_path) -> None:
+def test_force_replaces_an_earlier_output_and_leaves_other_runs_tmp(tmp_path) -> None:
     root = tmp_path / "demos"
     record_demonstrations(root, episodes=1, seed=3, progress=False)
     with pytest.raises(ValueError, match="already exists"):
         record_demonstrations(root, episodes=1, seed=3, progress=False)
-    (tmp_path / ".demos.tmp-killed").mkdir()  # what a killed run leaves
+    (tmp_path / ".demos.tmp-other").mkdir()  # another run's folder (live or killed): never ours to delete
     record_demonstrations(root, episodes=1, seed=4, progress=False, force=True)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["demos"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".demos.tmp-other", "demos"]
     assert LeRobotDataset("local/test", root=root).meta.total_episodes == 1
 
 

@@ -239,3 +239,9 @@ def test_rollout_deadlines_needs_robot_summary(tmp_path: Path) -> None:
     proc = _run_deadlines(env | {"OUT": str(out)})
     assert proc.returncode == 1 and "PushTSim disconnected" in proc.stderr and "dcdp.log" in proc.stderr
     assert "| dcdp" not in (out / "summary.md").read_text()
+
+
+def test_the_robot_is_named_not_none(tmp_path: Path) -> None:
+    """LeRobot prints a robot as "<id> <class>": an unnamed sim robot is "pusht_sim PushTSim"."""
+    assert str(make(tmp_path)) == "pusht_sim PushTSim"
+    assert str(make(tmp_path, id="left")) == "left PushTSim"

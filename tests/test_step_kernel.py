@@ -90,3 +90,48 @@ def test_kernel_refuses_what_it_does_not_cover() -> None:
             pack_weights(frames, other, head, 1.0)
     images = FrameEncoder({}, ["observation.image"], D, 20)
     assert not supports(images, extractor)
+
+
+_FALLBACK = """
+import logging, sys, torch
+logging.basicConfig(level=logging.INFO)
+from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+p = DCDPPolicy.from_pretrained(sys.argv[1])
+p.eval().reset()
+torch.manual_seed(0)
+obs = {"observation.state": torch.tensor([[200.0, 300.0]]) / 512 * 2 - 1,
+       "observation.environment_state": torch.linspace(-0.5, 0.5, 16).unsqueeze(0)}
+acts = [p.select_action(dict(obs)) for _ in range(10)]
+print("KERNEL", p._kernel_supported, "ACTIONS", torch.cat(acts).sum().item())
+"""
+
+
+@pytest.mark.slow
+def test_unwritable_kernel_cache_falls_back_to_pytorch(tmp_path) -> None:
+    """A cache folder that cannot be created: the shipped corrector still loads and acts (PyTorch path, one
+    warning); with a writable cache it runs the kernel; both give the same actions."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    shipped = Path(__file__).parents[1] / "models" / "pusht-dcdp-state"
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    runs = {}
+    for name, cache in (("broken", blocker / "cache"), ("ok", tmp_path / "cache")):
+        proc = subprocess.run(
+            [sys.executable, "-c", _FALLBACK, str(shipped)],
+            env={**env, "DCDP_KERNEL_CACHE": str(cache), "OMP_NUM_THREADS": "1"},
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        runs[name] = (proc.stdout.split("KERNEL")[-1].split(), proc.stderr)
+    (kernel_broken, _, total_broken), err_broken = runs["broken"]
+    (kernel_ok, _, total_ok), err_ok = runs["ok"]
+    assert kernel_broken == "False" and err_broken.count("compiled per-step kernel is unavailable") == 1
+    assert kernel_ok == "True" and "kernel ready in" in err_ok
+    assert float(total_broken) == pytest.approx(float(total_ok), abs=1e-4)

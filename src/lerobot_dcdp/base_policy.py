@@ -60,8 +60,19 @@ def load_base_policy(ref: str, device: str | None, relative_to: str | Path | Non
     path = resolve_base_reference(ref, relative_to)
     try:
         cfg = PreTrainedConfig.from_pretrained(path)
-    except FileNotFoundError as e:
-        raise ValueError(f"base_policy_path={ref!r}: no policy config.json found ({e})") from e
+    except Exception as e:  # a missing folder taken for a Hub id fails inside huggingface_hub
+        if Path(path).is_dir():
+            raise ValueError(
+                f"base_policy_path={ref!r}: {Path(path).resolve()} holds no readable policy config.json ({e})"
+            ) from e
+        looked = [str((Path(relative_to) / ref).resolve())] if relative_to else []
+        looked.append(str(Path(ref).expanduser().resolve()))
+        raise ValueError(
+            f"base_policy_path={ref!r} is not a local pretrained_model directory (looked in "
+            f"{', '.join(looked)}; working directory {Path.cwd()}) and no Hub repo of that name could be "
+            "read. Fix: pass the base's absolute path (--policy.base_policy_path=/path/to/pretrained_model) "
+            "or run from the directory the relative path starts in"
+        ) from e
     if device:
         cfg.device = device
     base = get_policy_class(cfg.type).from_pretrained(path, config=cfg)

@@ -12,6 +12,7 @@ from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
 EXECUTION_MODES = ("dcdp", "open_loop", "closed_loop", "temporal_ensemble", "object_anchored")
 CORRECTIONS = ("reconstruct", "residual")
 BACKBONES = ("auto", "mlp", "resnet18")
+KERNEL_CHOICES = ("auto", "on", "off")
 
 
 def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
@@ -28,9 +29,11 @@ def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
 class DCDPConfig(PreTrainedConfig):
     """Configuration of a DCDP corrector wrapped around a frozen chunking base policy.
 
-    The base policy (Diffusion Policy, ACT, ...) plans a chunk every ``n_action_steps`` control steps; the
-    corrector (dynamic feature extractor + asymmetric action VAE, paper Sec. 3) re-decodes every action of
-    the chunk at every step from the latest ``n_history`` observations.
+    The base policy (Diffusion Policy, ACT, VQ-BeT, ...) plans a chunk every ``n_action_steps`` control steps;
+    the corrector (dynamic feature extractor + chunk encoder, paper Sec. 3) adjusts every action of the chunk
+    at every step from the latest ``n_history`` observations: by default a residual head adds a learned
+    correction to the planned action (``correction='residual'``); the paper's GRU decoder re-decodes it
+    (``correction='reconstruct'``).
 
     Args:
         base_policy_path: The frozen base policy: a local ``pretrained_model`` directory or a Hub repo id.
@@ -55,10 +58,11 @@ class DCDPConfig(PreTrainedConfig):
             ``dcdp`` measure the change since that observation, which is what they correct.
         te_weight: Weight of the newest prediction in ``temporal_ensemble`` (authors: 0.5).
         correction: How the corrector produces action s of a chunk. ``residual`` (default; ours, see
-            docs/METHOD.md): ``a_s = plan_s + delta(z, plan_s, F_{t+s}, change since plan time, e_s)`` with
-            delta's last layer zero-initialised (a fresh corrector is exactly open loop). It trains on recorded
-            corrections of stale chunks (a dataset with ``plan_feature``, from ``dcdp-record-corrections``) or,
-            on plain demonstrations, on synthesised object motion (needs ``anchor_feature``; see the
+            docs/METHOD.md): ``a_s = plan_s + delta(z, plan_s, F_{t+s}, change since plan time, e_s)``
+            with delta's last layer zero-initialised (a fresh corrector is exactly open loop). It trains on
+            recorded corrections of stale chunks (a dataset with ``plan_feature``, from
+            ``dcdp-record-corrections``) or, on plain demonstrations, on synthesised object motion (needs
+            ``anchor_feature``; see the
             ``motion_*`` fields). ``reconstruct`` is the paper's recipe (``configs/policy/dcdp_paper.json``):
             the GRU decoder re-decodes the action from z and F_{t+s}, trained to reconstruct demonstration
             chunks; measured to make the base worse on PushT (docs/ANALYSIS.md).
@@ -72,6 +76,11 @@ class DCDPConfig(PreTrainedConfig):
         anchor_input: ``residual`` only: also give the head the ``object_anchored`` proposal for step s (the
             plan carried along with the anchor keypoints' rigid motion), as a change from ``plan_s``. The head
             still starts at zero (open loop) and learns how much of the proposal to take, and what else.
+        compiled_kernel: ``residual`` on CPU: run each control step's corrector math as one compiled numba
+            kernel (same actions as the modules within float rounding). ``auto`` uses it when it loads and
+            falls back to the PyTorch path with one warning when numba cannot import, compile or cache it
+            (cache location: ``$DCDP_KERNEL_CACHE``, default ``~/.cache/lerobot_dcdp/numba``); ``on`` raises
+            instead of falling back; ``off`` never uses it.
         motion_max_speed: ``residual`` on plain demonstrations: the largest synthesised object speed, in the
             anchor keypoints' raw units per control step (speeds are drawn uniformly up to it, in any
             direction). ``None``: 0.6 % of the anchor keypoints' extent in the base's statistics per step
@@ -96,13 +105,14 @@ class DCDPConfig(PreTrainedConfig):
         use_temporal_attention: Ablation flag TA (paper Table 3).
         use_diff_cross_attention: Ablation flag DCA (paper Table 3).
         use_diff_loss: Ablation flag SSD: the self-supervised loss L_diff (paper Table 3).
-        latent_dim: Size of the chunk latent z (authors' code: 2).
+        latent_dim: Size of the chunk latent z (authors' code: 2, the paper preset's value).
         encoder_hidden_dim: Hidden width of the chunk encoder E.
-        decoder_hidden_dim: Hidden size of the GRU decoder D (authors' code: 128).
+        decoder_hidden_dim: Hidden width of the correction head: the residual head's MLP (``residual``) or the
+            GRU decoder D (``reconstruct``; authors' code: 128, the paper preset's value).
         step_embed_dim: Size of the step embedding e_s.
         kl_weight: lambda_KL of the stage-1 loss (authors' code: 1e-3).
         diff_weight: lambda_diff of the stage-1 loss (authors' code: 1e-3).
-        optimizer_lr: AdamW learning rate (authors: 1e-4).
+        optimizer_lr: AdamW learning rate (the residual recipe's 1e-3; authors and the paper preset: 1e-4).
         optimizer_weight_decay: AdamW weight decay (authors: 1e-4).
         optimizer_grad_clip_norm: Gradient clipping (authors: 1.0).
         scheduler_warmup_steps: Warm-up of the cosine schedule.
@@ -124,6 +134,7 @@ class DCDPConfig(PreTrainedConfig):
     plan_step_feature: str = "observation.dcdp_plan_step"
     change_scale: float = 10.0
     anchor_input: bool = False
+    compiled_kernel: str = "auto"
     motion_max_speed: float | None = None
     motion_max_turn_deg: float = 0.5
     motion_static_fraction: float = 0.25
@@ -141,14 +152,14 @@ class DCDPConfig(PreTrainedConfig):
     use_diff_cross_attention: bool = True
     use_diff_loss: bool = True
 
-    latent_dim: int = 2
+    latent_dim: int = 8
     encoder_hidden_dim: int = 128
-    decoder_hidden_dim: int = 128
+    decoder_hidden_dim: int = 256
     step_embed_dim: int = 16
     kl_weight: float = 1e-3
     diff_weight: float = 1e-3
 
-    optimizer_lr: float = 1e-4
+    optimizer_lr: float = 1e-3
     optimizer_betas: tuple[float, float] = (0.9, 0.999)
     optimizer_weight_decay: float = 1e-4
     optimizer_grad_clip_norm: float = 1.0
@@ -188,7 +199,9 @@ class DCDPConfig(PreTrainedConfig):
         if self.anchor_input and not (self.anchor_feature and self.correction == "residual"):
             raise ValueError("anchor_input needs correction='residual' and an anchor_feature")
         if self.motion_max_speed is not None and not self.motion_max_speed >= 0:
-            raise ValueError(f"motion_max_speed must be >= 0 (or None for the default), got {self.motion_max_speed}")
+            raise ValueError(
+                f"motion_max_speed must be >= 0 (or None for the default), got {self.motion_max_speed}"
+            )
         if not self.motion_max_turn_deg >= 0:
             raise ValueError(f"motion_max_turn_deg must be >= 0, got {self.motion_max_turn_deg}")
         if not 0.0 <= self.motion_static_fraction <= 1.0:
@@ -200,6 +213,7 @@ class DCDPConfig(PreTrainedConfig):
         if not 0.0 < self.te_weight <= 1.0:
             raise ValueError(f"te_weight must be in (0, 1], got {self.te_weight}")
         _check_choice("backbone", self.backbone, BACKBONES)
+        _check_choice("compiled_kernel", self.compiled_kernel, KERNEL_CHOICES)
         for name in (
             "feature_dim",
             "state_hidden_dim",

@@ -27,6 +27,12 @@ def benchmark_rows(corrector_sha256: str, results_path: str | Path = "results/be
     )
 
 
+_HOW = {
+    "residual": "a residual head that adds a learned correction to the planned action",
+    "reconstruct": "a GRU decoder that re-decodes the action (the paper's recipe)",
+}
+
+
 def make_model_card(
     config,
     corrector_sha256: str,
@@ -51,7 +57,7 @@ def make_model_card(
 
 DCDP ("Closed-Loop Action Chunks with Dynamic Corrections for Training-Free Diffusion Policy") keeps a
 pretrained chunking policy frozen and adds a small corrector: a dynamic feature extractor over the last
-{config.n_history} observations and an asymmetric action VAE whose GRU decoder re-decodes every action of the
+{config.n_history} observations and a chunk encoder, with {_HOW[config.correction]}, for every action of the
 base's chunk ({config.n_action_steps} executed steps) at every control step from the newest observations.
 This repository holds **the corrector only** ({config.type} plugin `lerobot_policy_dcdp`); the base is loaded
 from its own reference.

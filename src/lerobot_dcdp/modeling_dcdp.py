@@ -1,21 +1,25 @@
-"""DCDP policy: a frozen chunking base plus a corrector that re-decodes every action of a chunk per step.
+"""DCDP policy: a frozen chunking base plus a corrector that adjusts every action of a chunk at every step.
 
-Stage 1 (``forward``): the corrector -- dynamic feature extractor pi_f and asymmetric action VAE -- learns to
-reconstruct demonstration chunks ``A_{t:t+H-1}`` from their latent z and the per-step features
-``F_{t+s} = pi_f(O_{t+s-M+1:t+s})``:
-``L = MSE(A_hat, A) + lambda_KL KL(q(z|A) || N(0, I)) + lambda_diff L_diff``
-(paper Eq. for the stage-1 objective). The base is not called.
+Stage 1 (``forward``), ``residual`` (default): one control step t per sample; the corrector -- dynamic feature
+extractor pi_f, chunk encoder E and residual head -- learns ``a_t = plan_s + delta(z, plan_s, F_t, change
+since plan time, e_s)`` from recorded corrections of stale chunks, or from plain demonstrations with
+synthesised object motion (``motion_synthesis.py``). ``reconstruct`` (the paper's): the VAE reconstructs
+demonstration chunks, ``L = MSE(A_hat, A) + lambda_KL KL(q(z|A) || N(0, I)) + lambda_diff L_diff``. The base
+is not called.
 
-Stage 2 (``select_action``): every H steps the base plans a chunk, which is normalised to [-1, 1] and
-encoded once to ``z_t = mu``; at every step s the newest observation enters the history bank (one
-cached frame token per step) and the action is ``D(z_t, F_{t+s}, e_s)``. The baselines (open loop, closed
-loop, temporal ensemble) are other execution modes of this same loop.
+Stage 2 (``select_action``): every H steps the base plans a chunk, which is normalised to [-1, 1] and encoded
+once to ``z_t = mu``; at every step s the newest observation enters the history bank (one cached frame token
+per step) and the action is ``plan_s + delta`` (``residual``) or ``D(z_t, F_{t+s}, e_s)`` (``reconstruct``).
+The baselines (open loop, closed loop, temporal ensemble, object anchoring) are other execution modes of this
+same loop.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import os
+import time
 from collections import deque
 from pathlib import Path
 
@@ -47,10 +51,9 @@ from lerobot_dcdp.correction import (
     to_unit_range,
     unnormalize,
 )
-from lerobot_dcdp.motion_synthesis import draw_motions, keypoint_extent, move_window
 from lerobot_dcdp.dynamics import DynamicFeatureExtractor, FrameEncoder, diff_loss
+from lerobot_dcdp.motion_synthesis import draw_motions, keypoint_extent, move_window
 from lerobot_dcdp.residual import ResidualHead, change_input
-
 
 NORMALIZER_STATS = ("min", "max", "mean", "std", "q01", "q99", "q10", "q90")
 
@@ -206,7 +209,26 @@ class DCDPPolicy(PreTrainedPolicy):
         process loads it from numba's disk cache (~0.5 s with the import) or compiles it (~15 s, once per
         machine), which would otherwise stall the first control step (``from_pretrained`` calls this)."""
         if self._kernel_applies():
-            self._kernel_weights()
+            try:
+                self._kernel_weights()
+            except Exception as err:
+                self._kernel_failed(err)
+
+    def _kernel_failed(self, err: Exception) -> None:
+        """``compiled_kernel='auto'``: fall back to the PyTorch path for good, with one warning."""
+        if self.config.compiled_kernel == "on":
+            raise RuntimeError(
+                f"compiled_kernel='on' but the numba kernel failed ({type(err).__name__}: {err}); use "
+                "--policy.compiled_kernel=auto to fall back to the PyTorch path"
+            ) from err
+        logging.getLogger(__name__).warning(
+            "dcdp: the compiled per-step kernel is unavailable (%s: %s); using the PyTorch path (same "
+            "actions, slower). Set DCDP_KERNEL_CACHE to a writable folder or --policy.compiled_kernel=off.",
+            type(err).__name__,
+            err,
+        )
+        self._kernel_supported = False
+        self._kernel = None
 
     def _check_against_base(self, base: PreTrainedPolicy) -> None:
         cfg, bcfg = self.config, base.config
@@ -365,20 +387,34 @@ class DCDPPolicy(PreTrainedPolicy):
         }
 
     def _current_action(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
-        """The action at t (B, A) of a residual sample (actions t-H+1 .. t+H-1) and whether it is real (B,)."""
+        """The action at t (B, A) of a residual sample (actions t-H+1 .. t+H-1), and whether it is real."""
         actions = batch[ACTION]
         actions = actions.unsqueeze(1) if actions.dim() == 2 else actions
         now = min(self.config.n_action_steps - 1, actions.shape[1] - 1)
         pad = batch.get("action_is_pad")
-        valid = ~pad.reshape(pad.shape[0], -1)[:, now] if pad is not None else torch.ones_like(actions[:, 0, 0])
+        valid = (
+            ~pad.reshape(pad.shape[0], -1)[:, now] if pad is not None else torch.ones_like(actions[:, 0, 0])
+        )
         return actions[:, now], valid.to(actions.dtype)
+
+    def _plan_column(self, batch: dict[str, Tensor]) -> Tensor:
+        """``plan_feature`` as chunks: (B, [K,] L, A) from a (L, A) column or a flat (L * A,) one."""
+        plan, a = batch[self.config.plan_feature], self.config.action_feature.shape[0]
+        if plan.dim() == 2 or (plan.dim() == 3 and plan.shape[-1] != a):  # flat, without / with time axis
+            if plan.shape[-1] % a:
+                raise ValueError(
+                    f"{self.config.plan_feature} holds {plan.shape[-1]} values per frame, not a multiple of "
+                    f"the action size {a}"
+                )
+            return plan.reshape(*plan.shape[:-1], -1, a)
+        return plan
 
     def _recorded_plan(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
         """The recorded chunk (B, H, A), base-normalised, and each sample's step s (B,) in it."""
         cfg = self.config
-        plan, step = batch[cfg.plan_feature], batch[cfg.plan_step_feature]
+        plan, step = self._plan_column(batch), batch[cfg.plan_step_feature]
         # the observation delta indices stack a time axis: the current frame is the last one (a (1,)-shaped
-        # feature arrives as (B, K), a (L, A) one as (B, K, L, A))
+        # feature arrives as (B, K))
         plan = plan[:, -1] if plan.dim() == 4 else plan
         step = step.reshape(step.shape[0], -1)[:, -1]
         if plan.dim() != 3 or plan.shape[1] < cfg.n_action_steps:
@@ -407,10 +443,10 @@ class DCDPPolicy(PreTrainedPolicy):
     def _synthesised_sample(self, batch: dict[str, Tensor]) -> tuple[dict, Tensor, Tensor, Tensor, Tensor]:
         """A plain demonstration sample with synthesised object motion (motion_synthesis.py).
 
-        Each sample is repeated ``motions_per_sample`` times; each copy gets a step s (plan time t-s, inside the
-        episode), the demonstration's own chunk planned at t-s as the plan (or the base's chunk planned then,
-        when ``plan_feature`` holds one per frame), its own rigid motion of the anchor keypoints through the
-        window, and the plan's action s carried with that motion as the target.
+        Each sample is repeated ``motions_per_sample`` times; each copy gets a step s (plan time t-s, inside
+        the episode), the demonstration's own chunk planned at t-s as the plan (or the base's chunk planned
+        then, when ``plan_feature`` holds one per frame), its own rigid motion of the anchor keypoints
+        through the window, and the plan's action s carried with that motion as the target.
 
         Returns:
             The moved batch, the plan (B', H, A) and step s (B',), the target (B', A) (all base-normalised)
@@ -434,7 +470,9 @@ class DCDPPolicy(PreTrainedPolicy):
         batch = {k: (v.repeat_interleave(reps, 0) if isinstance(v, Tensor) else v) for k, v in batch.items()}
         kp = self._norm(key, batch[key], inverse=True)
         if kp.dim() != 3:
-            raise ValueError("correction='residual' needs the observation history of the config's delta indices")
+            raise ValueError(
+                "correction='residual' needs the observation history of the config's delta indices"
+            )
         b, k = kp.shape[:2]
         actions = batch[ACTION]
         if actions.dim() != 3 or actions.shape[1] != 2 * horizon - 1:
@@ -449,13 +487,21 @@ class DCDPPolicy(PreTrainedPolicy):
         step = (torch.rand(b, device=kp.device) * (limit + 1)).floor().long().clamp_max(limit)
         rows = torch.arange(b, device=kp.device)
         if cfg.plan_feature in batch:  # the base's chunk planned at each frame (dcdp-precompute-plans)
-            per_frame = batch[cfg.plan_feature]
+            per_frame = self._plan_column(batch)
+            if per_frame.dim() != 4 or per_frame.shape[2] < horizon:
+                raise ValueError(
+                    f"{cfg.plan_feature} must hold the base's chunk (>= {horizon} actions) at every frame "
+                    f"of the observation window, got shape {tuple(per_frame.shape[1:])}"
+                )
             plan = self._norm(ACTION, per_frame[rows, k - 1 - step][:, :horizon])
         else:  # the demonstration's own chunk from t-s
             cols = (horizon - 1 - step).unsqueeze(1) + torch.arange(horizon, device=kp.device)
             plan = actions[rows.unsqueeze(1), cols]
         velocity, turn = draw_motions(
-            b, self._motion_max_speed(), math.radians(cfg.motion_max_turn_deg), cfg.motion_static_fraction,
+            b,
+            self._motion_max_speed(),
+            math.radians(cfg.motion_max_turn_deg),
+            cfg.motion_static_fraction,
             device=kp.device,
         )
         moved, rot, shift = move_window(kp.reshape(b, k, -1, 2), k - 1 - step, velocity, turn)
@@ -729,6 +775,7 @@ class DCDPPolicy(PreTrainedPolicy):
         if not (
             weight is not None
             and self.fast_inference
+            and cfg.compiled_kernel != "off"
             and not self.training
             and not (cfg.anchor_input or cfg.inference_delay)
             and weight.device.type == "cpu"
@@ -736,8 +783,11 @@ class DCDPPolicy(PreTrainedPolicy):
         ):
             return False
         if self._kernel_supported is None:
-            from lerobot_dcdp import step_kernel
-
+            try:
+                from lerobot_dcdp import step_kernel
+            except Exception as err:  # numba missing, or it cannot set up its cache
+                self._kernel_failed(err)
+                return False
             self._kernel_supported = step_kernel.supports(self.frame_encoder, self.extractor)
         return self._kernel_supported
 
@@ -755,8 +805,16 @@ class DCDPPolicy(PreTrainedPolicy):
             packed = step_kernel.pack_weights(
                 self.frame_encoder, self.extractor, self.residual, self.config.change_scale
             )
-            self._packed = (versions, packed)
+            first = not step_kernel.loaded()
+            started = time.perf_counter()
             step_kernel.warm_up(packed)  # the first call in a process loads the kernel: not on a control step
+            if first:
+                logging.getLogger(__name__).info(
+                    "dcdp: compiled per-step kernel ready in %.1f s (cache: %s)",
+                    time.perf_counter() - started,
+                    step_kernel.cache_dir(),
+                )
+            self._packed = (versions, packed)
         self._run_kernel = step_kernel.residual_step  # numba is imported only once a kernel is used
         return self._packed[1]
 
@@ -765,7 +823,11 @@ class DCDPPolicy(PreTrainedPolicy):
         self._kernel = None
         if self._rep is None or self._bank is None or not self._kernel_applies():
             return
-        self._kernel = self._kernel_weights()
+        try:
+            self._kernel = self._kernel_weights()
+        except Exception as err:  # compile or cache failure: this chunk and later ones run eagerly
+            self._kernel_failed(err)
+            return
         self._w_step_np = self._w_step.T.contiguous().numpy()  # the kernel's (out, in) layout
         self._half_np = self.action_half_range.numpy()
 

@@ -49,9 +49,7 @@ def draw_motions(
     return velocity, turn * moving
 
 
-def motion_at(
-    offsets: Tensor, velocity: Tensor, turn_rate: Tensor, pivot: Tensor
-) -> tuple[Tensor, Tensor]:
+def motion_at(offsets: Tensor, velocity: Tensor, turn_rate: Tensor, pivot: Tensor) -> tuple[Tensor, Tensor]:
     """The rigid motion ``T_j`` after ``j`` steps, as ``(R, t)`` with ``T_j(p) = R p + t``.
 
     Args:

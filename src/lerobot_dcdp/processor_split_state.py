@@ -105,9 +105,15 @@ class SplitStateProcessorStep(ObservationProcessorStep):
                 else f"with the other inputs given separately it must hold {expected}"
             )
             got = f"has {width} values (shape {shape})" if shape else f"is not an array ({state!r:.60})"
+            fix = (
+                f"; the env or robot does not report {missing}: pick an observation type that does (PushT: "
+                "--env.obs_type=environment_state_agent_pos) or a corrector trained on what it reports"
+                if missing
+                else ""
+            )
             raise ValueError(
                 f"dcdp_split_state: {OBS_STATE} {got}; {rule} (the policy's vector inputs: "
-                f"{_layout(self.splits)})"
+                f"{_layout(self.splits)}){fix}"
             )
         if len(parts) == 1:
             return observation  # already split

@@ -18,15 +18,33 @@ out of the modules once (the policy re-packs when they change); the checkpoint s
 from __future__ import annotations
 
 import math
+import os
+from pathlib import Path
 from typing import NamedTuple
 
-import numpy as np
-import torch
-from numba import njit
-from torch import nn
+#: Where numba keeps the compiled kernel: ``$DCDP_KERNEL_CACHE``, else ``$XDG_CACHE_HOME/lerobot_dcdp/numba``
+#: (``~/.cache/...``). Never the package folder, which a plain ``pip install`` may leave read-only. Set before
+#: numba is imported; a process that imported numba earlier keeps its own ``NUMBA_CACHE_DIR``.
+CACHE_ENV = "DCDP_KERNEL_CACHE"
 
-from lerobot_dcdp.dynamics import DynamicFeatureExtractor, FrameEncoder
-from lerobot_dcdp.residual import ResidualHead
+
+def cache_dir() -> Path:
+    """The kernel's cache location (see :data:`CACHE_ENV`)."""
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "lerobot_dcdp" / "numba"
+
+
+os.environ.setdefault("NUMBA_CACHE_DIR", str(cache_dir()))
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from numba import njit  # noqa: E402
+from torch import nn  # noqa: E402
+
+from lerobot_dcdp.dynamics import DynamicFeatureExtractor, FrameEncoder  # noqa: E402
+from lerobot_dcdp.residual import ResidualHead  # noqa: E402
 
 
 class StepWeights(NamedTuple):
@@ -411,6 +429,11 @@ def residual_step(
     vec = np.empty_like(xs[0])
     _step(xs[0], xs[1], xs[2], xs[3], w_step, xs[4], half, w, action, new_bank, vec)
     return torch.from_numpy(action), torch.from_numpy(new_bank), torch.from_numpy(vec)
+
+
+def loaded() -> bool:
+    """Whether this process has already loaded (or compiled) the kernel."""
+    return bool(_step.signatures)
 
 
 def warm_up(w: StepWeights) -> None:

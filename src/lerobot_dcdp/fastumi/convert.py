@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from lerobot_dcdp.atomic_dataset import replace_dir
 from lerobot_dcdp.fastumi.reader import (
     LAYOUTS,
     POSE_NAMES,
@@ -330,7 +331,7 @@ def convert_fastumi(
         staging = tmp / "dataset" / "images"
         if staging.exists():
             shutil.rmtree(staging)
-        _move_into_place(tmp / "dataset", out, tmp)
+        replace_dir(tmp / "dataset", out, tmp)
     except BaseException:
         if dataset is not None:
             _abandon(dataset)
@@ -379,19 +380,6 @@ def _missing_parents(out: Path) -> list[Path]:
             break
         missing.append(parent)
     return missing
-
-
-def _move_into_place(built: Path, out: Path, tmp: Path) -> None:
-    old = None
-    if out.exists():
-        old = tmp / "replaced"
-        os.replace(out, old)
-    try:
-        os.replace(built, out)
-    except BaseException:
-        if old is not None:
-            os.replace(old, out)
-        raise
 
 
 def _abandon(dataset: Any) -> None:

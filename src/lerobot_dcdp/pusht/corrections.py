@@ -40,15 +40,14 @@ with a magnitude uniform in ``[0, max_magnitude]`` px/step. Seeds must stay belo
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from lerobot_dcdp.atomic_dataset import staged_dir
 from lerobot_dcdp.pusht.demos import EVAL_SEED_START, FPS, TASK
 
 EXECUTIONS = ("object_anchored", "open_loop", "dcdp")
@@ -364,14 +363,11 @@ def record_corrections(
             raise ValueError(f"root={root} already exists; pass --force to overwrite it")
     policy, pre, post = load_policy(policy_path, base_path, execution, "observation.environment_state")
     horizon = policy.config.n_action_steps
-    root.parent.mkdir(parents=True, exist_ok=True)
-    tmp_parent = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
-    tmp_root = tmp_parent / root.name
     seeds = list(range(seed, seed + episodes))
     specs = [drift_for_seed(s, max_magnitude, static_fraction) for s in seeds]
     frames = 0
     gap = []
-    try:
+    with staged_dir(root) as tmp_root:
         ds = LeRobotDataset.create(
             repo_id=repo_id,
             fps=FPS,
@@ -414,11 +410,6 @@ def record_corrections(
             f"execution={execution} teacher={teacher} lookahead={lookahead} "
             f"seeds={seed}..{seed + episodes - 1}\n"
         )
-        if root.exists():
-            shutil.rmtree(root)
-        tmp_root.rename(root)
-    finally:
-        shutil.rmtree(tmp_parent, ignore_errors=True)
     gap_all = np.concatenate(gap)
     return {
         "episodes": episodes,

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
-import shutil
 import sys
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from lerobot_dcdp.atomic_dataset import staged_dir
 
 EVAL_SEED_START = 100_000
 FPS = 10
@@ -242,12 +242,7 @@ def record_demonstrations(
             )
         if not force:
             raise ValueError(f"root={root} already exists; pass --force to overwrite it")
-    root.parent.mkdir(parents=True, exist_ok=True)
-    for stale in root.parent.glob(f".{root.name}.tmp-*"):  # left by a killed earlier run
-        shutil.rmtree(stale, ignore_errors=True)
-    tmp_parent = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
-    tmp_root = tmp_parent / root.name
-    try:
+    with staged_dir(root) as tmp_root:
         ds = LeRobotDataset.create(
             repo_id=repo_id,
             fps=FPS,
@@ -296,11 +291,6 @@ def record_demonstrations(
             raise ValueError(f"only {kept} of {tried} expert episodes succeeded; wanted {episodes}")
         lead = "" if takeover is None else f" takeover={takeover[0]} steps={takeover[1]}..{takeover[2]}"
         (tmp_root / MARKER).write_text(f"episodes={kept} seed={seed}{lead}\n")
-        if root.exists():
-            shutil.rmtree(root)
-        tmp_root.rename(root)
-    finally:
-        shutil.rmtree(tmp_parent, ignore_errors=True)
     return {"episodes": kept, "tried": tried, "frames": frames, "seeds": seeds, "root": str(root)}
 
 

@@ -24,6 +24,7 @@ class PushTSimConfig(RobotConfig):
         directions_deg: Direction set of the ``random`` drift.
         seed: Seed of the episode started on ``connect()`` (block pose, goal, random drift); ``None``:
             unseeded.
+        id: LeRobot's robot id (``--robot.id``); default ``pusht_sim``.
         realtime: ``True``: simulated time follows the wall clock from the first action on: an action
             that arrives more than one control step (0.1 s) after the previous one first lets the world
             run the missed steps under the previous target, as a real robot would. ``False``: lock-step,
@@ -40,6 +41,8 @@ class PushTSimConfig(RobotConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.id is None:  # LeRobot prints the robot as "<id> <class>": name it rather than "None"
+            self.id = "pusht_sim"
         validate_perturbation(
             self.perturbation, self.magnitude, self.direction_deg, self.resample_every, self.directions_deg
         )
