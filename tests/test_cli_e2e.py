@@ -202,3 +202,44 @@ def test_accelerate_two_cpu_processes(diffusion_base, demo_root, tmp_path) -> No
         cwd=tmp_path,
     )
     assert (out / "checkpoints" / "000003" / "pretrained_model" / "model.safetensors").is_file()
+
+
+@pytest.mark.slow
+def test_quantile_normalised_base_through_the_clis(demo_root, tmp_path) -> None:
+    """A stock ACT base normalised with QUANTILES / QUANTILE10 (pi0.5-style), trained by lerobot-train: the
+    wrapper maps its actions with the base's own quantiles, and every execution mode runs in lerobot-eval."""
+    from helpers import tiny_train_flags
+
+    from lerobot_dcdp.correction import normalize
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+
+    mapping = '{"VISUAL": "MEAN_STD", "STATE": "QUANTILE10", "ENV": "QUANTILES", "ACTION": "QUANTILES"}'
+    run(
+        [
+            str(BIN / "lerobot-train"),
+            "--policy.type=act",
+            *tiny_train_flags("local/test", demo_root),
+            f"--output_dir={tmp_path / 'act'}",
+            f"--policy.normalization_mapping={mapping}",
+            "--policy.chunk_size=8",
+            "--policy.n_action_steps=8",
+            "--policy.dim_model=32",
+            "--policy.n_heads=2",
+            "--policy.dim_feedforward=64",
+            "--policy.n_encoder_layers=1",
+            "--policy.n_decoder_layers=1",
+            "--policy.pretrained_backbone_weights=null",
+        ],
+        cwd=tmp_path,
+    )
+    base = tmp_path / "act" / "checkpoints" / "last" / "pretrained_model"
+    ckpt = train(base, demo_root, tmp_path / "train", steps=2)
+    policy = DCDPPolicy.from_pretrained(ckpt)
+    mode, stats = policy._base_stats["action"]
+    assert mode == "QUANTILES"
+    torch.testing.assert_close(policy.action_low, normalize(stats["min"], stats, mode))
+    torch.testing.assert_close(policy.action_high, normalize(stats["max"], stats, mode))
+    for mode in ("dcdp", "open_loop", "closed_loop", "temporal_ensemble", "object_anchored"):
+        out = tmp_path / f"eval_{mode}"
+        evaluate(ckpt, out, f"--policy.execution={mode}")
+        assert json.loads((out / "eval_info.json").read_text())["overall"]["n_episodes"] == 2

@@ -45,6 +45,7 @@ def test_image_base_and_image_corrector_train_and_evaluate(tmp_path) -> None:
             f"--policy.base_policy_path={ckpt}",
             *tiny_train_flags("local/img", data),
             f"--output_dir={tmp_path / 'dcdp'}",
+            "--policy.correction=reconstruct",  # images only, no object keypoints: the paper's recipe
             "--policy.feature_dim=32",
             "--policy.n_heads=4",
         ],
@@ -82,3 +83,83 @@ def _eval_one_image_episode(policy_dir, out, *flags: str) -> None:
         cwd=out.parent,
     )
     assert json.loads((out / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
+
+
+@pytest.mark.slow
+def test_stock_vqbet_base_is_wrapped_generically(tmp_path) -> None:
+    """LeRobot's third chunking policy: a stock VQ-BeT (one image + state, 5-frame history) trained by
+    lerobot-train, wrapped with no VQ-BeT-specific code; open loop through the wrapper takes the base's own
+    select_action actions, and every execution mode runs in lerobot-eval."""
+    import torch
+
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+
+    data = tmp_path / "img"
+    record_demonstrations(data, "local/img", episodes=1, seed=3, images=True, keypoints=False, progress=False)
+    run(
+        [
+            str(BIN / "lerobot-train"),
+            "--policy.type=vqbet",
+            *tiny_train_flags("local/img", data, steps=3),
+            f"--output_dir={tmp_path / 'vqbet'}",
+            "--policy.pretrained_backbone_weights=null",
+            "--policy.crop_shape=[84,84]",
+            "--policy.n_vqvae_training_steps=2",
+            "--policy.vqvae_n_embed=8",
+            "--policy.vqvae_embedding_dim=32",
+            "--policy.vqvae_enc_hidden_dim=32",
+            "--policy.gpt_n_layer=1",
+            "--policy.gpt_n_head=2",
+            "--policy.gpt_hidden_dim=32",
+            "--policy.gpt_input_dim=32",
+            "--policy.gpt_output_dim=32",
+            "--policy.spatial_softmax_num_keypoints=8",
+        ],
+        cwd=tmp_path,
+    )
+    base = tmp_path / "vqbet" / "checkpoints" / "last" / "pretrained_model"
+    run(
+        [
+            str(BIN / "lerobot-train"),
+            "--policy.type=dcdp",
+            f"--policy.base_policy_path={base}",
+            *tiny_train_flags("local/img", data),
+            f"--output_dir={tmp_path / 'dcdp'}",
+            "--policy.correction=reconstruct",
+            "--policy.n_action_steps=5",  # VQ-BeT returns action_chunk_size = 5 actions per call
+            "--policy.feature_dim=32",
+            "--policy.n_heads=4",
+        ],
+        cwd=tmp_path,
+    )
+    corrector = tmp_path / "dcdp" / "checkpoints" / "last" / "pretrained_model"
+    cfg = json.loads((corrector / "config.json").read_text())
+    assert cfg["base_policy_type"] == "vqbet"
+
+    # open loop through the wrapper == the base's own select_action, frame by frame (both deterministic)
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.policies.factory import make_pre_post_processors
+
+    policy = DCDPPolicy.from_pretrained(corrector)
+    policy.config.execution = "open_loop"
+    policy.eval().reset()
+    pre, _ = make_pre_post_processors(policy.config, pretrained_path=str(corrector))
+    own = DCDPPolicy.from_pretrained(corrector).base  # a second copy of the base, run as LeRobot runs it
+    own.reset()
+    ds = LeRobotDataset("local/img", root=data)
+    for i in range(12):
+        obs = pre({k: ds[i][k].unsqueeze(0) for k in ("observation.image", "observation.state")})
+        torch.manual_seed(i)  # VQ-BeT samples its codes: the same draws for both
+        ours = policy.select_action(dict(obs))
+        torch.manual_seed(i)
+        torch.testing.assert_close(ours, own.select_action(dict(obs)))
+    for mode in ("dcdp", "open_loop", "closed_loop", "temporal_ensemble"):
+        _eval_one_image_episode(
+            corrector,
+            tmp_path / f"eval_{mode}",
+            f"--policy.execution={mode}",
+            "--env.type=pusht_perturbed",
+            "--env.perturbation=constant",
+            "--env.magnitude=2",
+            "--env.episode_length=8",
+        )

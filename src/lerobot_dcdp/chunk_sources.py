@@ -21,23 +21,51 @@ from torch import Tensor
 
 
 class ChunkSource:
-    """Generic base: ``predict_action_chunk`` on the current observation (n_obs_steps == 1)."""
+    """Any LeRobot base with ``predict_action_chunk``, fed its observation history the LeRobot way.
+
+    A base that keeps ``_queues`` after ``reset()`` (diffusion, VQ-BeT, multi_task_dit, smolvla, ...) gets
+    each step's observation appended with LeRobot's ``populate_queues``, its cameras stacked into
+    ``observation.images`` when it keeps that queue (as its own ``select_action`` does), so
+    ``predict_action_chunk`` reads the history ``select_action`` would; a base without queues (ACT, pi0, ...)
+    gets the current observation. What a call returns and the longest chunk it can return come from the base's
+    config (:attr:`chunk_length`, :attr:`max_length`).
+    """
 
     def __init__(self, base: PreTrainedPolicy) -> None:
         self.base = base
 
     @property
+    def _slices_horizon(self) -> bool:
+        """The base denoises ``horizon`` steps and keeps ``n_action_steps`` of them from the current one
+        (diffusion, multi_task_dit): it can return up to ``horizon - n_obs_steps + 1``."""
+        cfg = self.base.config
+        return all(
+            isinstance(getattr(cfg, n, None), int) for n in ("horizon", "n_obs_steps", "n_action_steps")
+        )
+
+    @property
     def chunk_length(self) -> int:
         """Actions one chunk call returns (what H may not exceed)."""
         cfg = self.base.config
-        for name in ("n_action_steps", "chunk_size", "horizon"):
+        names = (
+            ("n_action_steps",)
+            if self._slices_horizon
+            else ("action_chunk_size", "chunk_size", "n_action_steps")
+        )
+        for name in names:
             if getattr(cfg, name, None):
                 return int(getattr(cfg, name))
-        raise ValueError(f"cannot tell the chunk length of base type {cfg.type!r}")
+        raise ValueError(
+            f"cannot tell how many actions base type {cfg.type!r} returns per call: its config has none of "
+            f"{names}"
+        )
 
     @property
     def max_length(self) -> int:
         """The most actions one call can return (``chunk(prepared, length)``'s limit)."""
+        cfg = self.base.config
+        if self._slices_horizon:
+            return int(cfg.horizon - cfg.n_obs_steps + 1)
         return self.chunk_length
 
     def reset(self) -> None:
@@ -53,12 +81,26 @@ class ChunkSource:
             self.base._queues = snapshot
 
     def observe(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        return _without_action(batch)
+        """Append the newest normalised observation to the base's history; returns what the base reads."""
+        batch = _without_action(batch)
+        queues = getattr(self.base, "_queues", None)
+        if queues is None:
+            return batch
+        images = getattr(self.base.config, "image_features", None)
+        if images and OBS_IMAGES in queues:
+            batch[OBS_IMAGES] = _stack_images(batch, images)
+        self.base._queues = populate_queues(queues, batch, exclude_keys=[ACTION])
+        return batch
 
     def chunk(self, prepared: dict[str, Tensor], length: int | None = None) -> Tensor:
-        """``length`` (default ``chunk_length``) actions from the step of ``prepared``'s observation."""
+        """``length`` (default ``chunk_length``) actions from the step of ``prepared``'s observation; a
+        horizon-slicing base reads further into the same sample for a longer chunk (the denoised horizon
+        and its noise are the same whatever is kept)."""
         length = self._check_length(length)
-        return self.base.predict_action_chunk(prepared)[:, :length]
+        cfg = self.base.config
+        longer = self._slices_horizon and length > cfg.n_action_steps
+        with _kept_actions(cfg, length) if longer else contextlib.nullcontext():
+            return self.base.predict_action_chunk(dict(prepared))[:, :length]
 
     def chunk_from(self, prepared: dict[str, Tensor], snapshot: dict | None, length: int) -> Tensor:
         """The chunk planned from an earlier step: its prepared batch and the base's history then
@@ -80,54 +122,10 @@ class ChunkSource:
         return length
 
 
-class DiffusionChunkSource(ChunkSource):
-    """Diffusion Policy: keeps the base's ``n_obs_steps`` observation queues filled (as its
-    ``select_action`` does) so ``predict_action_chunk`` reads the same history; returns ``n_action_steps``
-    actions starting at the current step."""
-
-    @property
-    def chunk_length(self) -> int:
-        return int(self.base.config.n_action_steps)
-
-    def _prepare(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        batch = _without_action(batch)
-        if self.base.config.image_features:
-            batch[OBS_IMAGES] = _stack_images(batch, self.base.config.image_features)
-        return batch
-
-    @property
-    def max_length(self) -> int:
-        """The whole horizon from the current step: ``horizon - n_obs_steps + 1``."""
-        cfg = self.base.config
-        return int(cfg.horizon - cfg.n_obs_steps + 1)
-
-    def observe(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        prepared = self._prepare(batch)
-        self.base._queues = populate_queues(self.base._queues, prepared)
-        return prepared
-
-    def chunk(self, prepared: dict[str, Tensor], length: int | None = None) -> Tensor:
-        """The base keeps ``n_action_steps`` of its horizon; a longer chunk reads further into the same
-        sample (the denoised horizon and its noise are the same whatever is kept)."""
-        length = self._check_length(length)
-        cfg = self.base.config
-        with _kept_actions(cfg, length) if length > cfg.n_action_steps else contextlib.nullcontext():
-            return self.base.predict_action_chunk(prepared)[:, :length]
-
-
-class ACTChunkSource(ChunkSource):
-    """ACT: the whole ``chunk_size`` prediction; ACT's own temporal ensembler (in its ``select_action``) is
-    bypassed, the wrapper's execution mode decides how the chunk is executed."""
-
-    @property
-    def chunk_length(self) -> int:
-        return int(self.base.config.chunk_size)
-
-
 @contextlib.contextmanager
 def _kept_actions(cfg, n: int):
-    """LeRobot's diffusion model keeps ``config.n_action_steps`` actions of the horizon it denoises: keep
-    ``n`` for one call."""
+    """A horizon-slicing base keeps ``config.n_action_steps`` actions of the horizon it denoises: keep ``n``
+    for one call."""
     kept = cfg.n_action_steps
     cfg.n_action_steps = n
     try:
@@ -150,15 +148,9 @@ def make_chunk_source(base: PreTrainedPolicy) -> ChunkSource:
         raise ValueError(
             f"base policy type {base.config.type!r} has no predict_action_chunk: it cannot plan chunks"
         )
-    kind = base.config.type
-    if kind == "diffusion":
-        return DiffusionChunkSource(base)
-    if kind == "act":
-        return ACTChunkSource(base)
-    if getattr(base.config, "n_obs_steps", 1) != 1:
+    if getattr(base.config, "n_obs_steps", 1) != 1 and getattr(base, "_queues", None) is None:
         raise ValueError(
-            f"base policy type {kind!r} needs n_obs_steps={base.config.n_obs_steps} frames "
-            "and has no adapter; "
-            "only single-frame bases are supported generically"
+            f"base policy type {base.config.type!r} reads n_obs_steps={base.config.n_obs_steps} frames but "
+            "keeps no observation queues (_queues) after reset(): dcdp cannot feed it its history"
         )
     return ChunkSource(base)
