@@ -243,3 +243,12 @@ def test_quantile_normalised_base_through_the_clis(demo_root, tmp_path) -> None:
         out = tmp_path / f"eval_{mode}"
         evaluate(ckpt, out, f"--policy.execution={mode}")
         assert json.loads((out / "eval_info.json").read_text())["overall"]["n_episodes"] == 2
+
+
+@pytest.mark.slow
+def test_a_state_corrector_in_a_pixel_env_names_the_obs_type(diffusion_base, demo_root, tmp_path) -> None:
+    ckpt = train(diffusion_base, demo_root, tmp_path / "train", steps=1)
+    proc = evaluate(ckpt, tmp_path / "eval", "--env.obs_type=pixels_agent_pos", ok=False)
+    assert proc.returncode != 0
+    lines = [ln for ln in (proc.stdout + proc.stderr).splitlines() if "Error" in ln and ": " in ln]
+    assert lines and "--env.obs_type=environment_state_agent_pos" in lines[-1], (lines, proc.stderr[-3000:])

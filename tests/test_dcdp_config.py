@@ -84,8 +84,9 @@ def test_feature_mismatch_names_the_feature(diffusion_base, demo_root) -> None:
         DCDPPolicy(cfg)
     cfg = make_dcdp_config(diffusion_base, demo_root)
     del cfg.input_features["observation.environment_state"]
-    with pytest.raises(ValueError, match="observation.environment_state"):
+    with pytest.raises(ValueError, match="observation.environment_state") as err:
         DCDPPolicy(cfg)
+    assert "Fix: train on a dataset that records 'observation.environment_state'" in str(err.value)
     cfg = make_dcdp_config(diffusion_base, demo_root)
     cfg.output_features["action"] = PolicyFeature(type=FeatureType.ACTION, shape=(3,))
     with pytest.raises(ValueError, match="action"):

@@ -103,10 +103,12 @@ def test_still_scenes_keep_the_plan_and_moving_ones_move_it(diffusion_base, demo
     assert info["plan_gap"] > 0.0
 
 
-def test_synthesised_target_is_the_plan_carried_with_the_observed_motion(diffusion_base, demo_root) -> None:
-    """What the loss trains toward: the demonstration's action at t moved by the synthesised rigid motion
-    between the demonstration's frame t and the moved one (the object's own pushes since plan time are not
-    in the label: only the motion the world added)."""
+@pytest.mark.parametrize("label", ["observed", "added"])
+def test_synthesised_target_carries_the_plan_with_the_object(diffusion_base, demo_root, label) -> None:
+    """What the loss trains toward: the demonstration's action at t carried along with the object's rigid
+    motion since plan time -- ``observed``: the whole motion the moved keypoints show (the object_anchored
+    rule, pushes included); ``added``: only the synthesised motion (between the demonstration's frame t and
+    the moved one)."""
     policy = _policy(
         diffusion_base,
         demo_root,
@@ -114,6 +116,7 @@ def test_synthesised_target_is_the_plan_carried_with_the_observed_motion(diffusi
         motion_max_speed=4.0,
         motion_max_turn_deg=2.0,
         motions_per_sample=2,
+        motion_label=label,
     )
     batch = next(training_batches(policy, demo_root, batch_size=6))
     torch.manual_seed(3)
@@ -126,8 +129,9 @@ def test_synthesised_target_is_the_plan_carried_with_the_observed_motion(diffusi
     k = kp.shape[1]
     original = batch[KEY].repeat_interleave(2, 0)
     before = policy._norm(KEY, original, inverse=True).reshape(kp.shape)
-    rot, t = rigid_fit_2d(before[:, -1], kp[:, -1])
-    assert ((t.norm(dim=-1) > 1e-3) == (step > 0)).all()  # no motion yet at the plan's own step
+    added = rigid_fit_2d(before[:, -1], kp[:, -1])
+    assert ((added[1].norm(dim=-1) > 1e-3) == (step > 0)).all()  # no motion yet at the plan's own step
+    rot, t = added if label == "added" else rigid_fit_2d(kp[rows, k - 1 - step], kp[:, -1])
     raw = policy._norm("action", plan[rows, step], inverse=True)
     expected = policy._norm("action", anchor_actions(raw, rot, t))
     torch.testing.assert_close(target, expected, atol=1e-4, rtol=1e-4)

@@ -72,6 +72,13 @@ def test_wrong_size_is_one_clear_error() -> None:
         SplitStateProcessorStep(splits=[(ENV, 16), (STATE, 2)])
 
 
+def test_an_env_without_the_keypoints_names_the_obs_type_to_use() -> None:
+    """A state corrector run in an env that reports pixels + agent position only (PushT pixels_agent_pos)."""
+    with pytest.raises(ValueError, match=r"does not report observation.environment_state") as err:
+        step().observation({STATE: torch.zeros(1, 2)})
+    assert "--env.obs_type=environment_state_agent_pos" in str(err.value)
+
+
 def test_without_state_passes_through() -> None:
     obs = {"observation.image": torch.zeros(1, 3, 4, 4)}
     assert step().observation(dict(obs)).keys() == obs.keys()

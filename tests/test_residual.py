@@ -237,7 +237,7 @@ def test_recorded_corrections_hold_the_stale_plan_and_the_teacher(corrections_ro
     )
     assert ds.meta.total_episodes == 3
     assert all(drift_for_seed(s, 3.0, 0.0).perturbation != "none" for s in (5, 6, 7))
-    plan = torch.stack([ds[i]["observation.dcdp_plan"] for i in range(24)])
+    plan = torch.stack([ds[i]["observation.dcdp_plan"] for i in range(24)]).reshape(24, -1, 2)  # flat (L*A,)
     step = torch.stack([ds[i]["observation.dcdp_plan_step"] for i in range(24)]).reshape(-1).long()
     action = torch.stack([ds[i]["action"] for i in range(24)])
     executed = torch.stack([ds[i]["executed_action"] for i in range(24)])
@@ -369,7 +369,7 @@ def test_gated_teacher_leaves_chunks_alone_without_drift(diffusion_base, tmp_pat
     for i in range(len(ds)):
         item = ds[i]
         s = int(item["observation.dcdp_plan_step"].item())
-        planned = item["observation.dcdp_plan"][s]
+        planned = item["observation.dcdp_plan"].reshape(-1, 2)[s]
         assert torch.equal(item["action"], planned) and torch.equal(item["executed_action"], planned)
 
 
@@ -435,3 +435,35 @@ def test_compiled_step_refuses_a_batch_that_changed_mid_chunk(diffusion_base, co
     assert policy._step == 2  # nothing advanced
     policy.reset()
     assert policy.select_action(dict(one[0])).shape[0] == 1  # a new episode may change the batch
+
+
+def test_recorded_rounds_merge_with_lerobots_own_merge(diffusion_base, corrections_root, tmp_path) -> None:
+    """DAgger rounds aggregate with the stock merge_datasets (the plan is stored flat), and the merged data
+    trains the residual corrector."""
+    from lerobot.datasets.dataset_tools import merge_datasets
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_dcdp.pusht.corrections import record_corrections
+
+    other = tmp_path / "round2"
+    record_corrections(
+        other,
+        "local/test",
+        base_path=str(diffusion_base),
+        episodes=1,
+        seed=20,
+        batch_size=1,
+        max_steps=10,
+        progress=False,
+    )
+    rounds = [LeRobotDataset("local/test", root=r) for r in (corrections_root, other)]
+    merged = merge_datasets(rounds, output_repo_id="local/test", output_dir=tmp_path / "merged")
+    assert merged.meta.total_episodes == 4
+    assert merged.meta.total_frames == sum(d.meta.total_frames for d in rounds)
+    last = merged[merged.meta.total_frames - 1]
+    torch.testing.assert_close(
+        last["observation.dcdp_plan"], rounds[1][rounds[1].meta.total_frames - 1]["observation.dcdp_plan"]
+    )
+    policy = _residual_policy(diffusion_base, tmp_path / "merged")
+    loss, info = policy.forward(next(training_batches(policy, tmp_path / "merged", batch_size=8)))
+    assert torch.isfinite(loss) and info["synthesised"] == 0.0

@@ -13,6 +13,7 @@ EXECUTION_MODES = ("dcdp", "open_loop", "closed_loop", "temporal_ensemble", "obj
 CORRECTIONS = ("reconstruct", "residual")
 BACKBONES = ("auto", "mlp", "resnet18")
 KERNEL_CHOICES = ("auto", "on", "off")
+MOTION_LABELS = ("observed", "added")
 
 
 def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
@@ -89,6 +90,12 @@ class DCDPConfig(PreTrainedConfig):
             object about its keypoint centroid, degrees per control step (uniform in [-max, max]).
         motion_static_fraction: ``residual`` on plain demonstrations: share of synthesised samples without
             motion, whose label is the plan itself (the corrector learns to leave a still scene alone).
+        motion_label: ``residual`` on plain demonstrations: the motion a moving sample's label carries the
+            plan with. ``observed`` (default): the object's whole rigid motion since plan time as the moved
+            keypoints show it (the ``object_anchored`` rule, the object's own motion under the push included;
+            still samples keep the plan: the gated teacher of the recorded recipe). ``added``: only the
+            synthesised motion (measured to follow the drift alone, which scores below open loop:
+            docs/ANALYSIS.md).
         motions_per_sample: ``residual`` on plain demonstrations: independent motions drawn per dataset
             sample (the batch is repeated this many times).
         backbone: Per-frame backbone: ``mlp`` for state/keypoint vectors, ``resnet18`` for images, ``auto``
@@ -138,6 +145,7 @@ class DCDPConfig(PreTrainedConfig):
     motion_max_speed: float | None = None
     motion_max_turn_deg: float = 0.5
     motion_static_fraction: float = 0.25
+    motion_label: str = "observed"
     motions_per_sample: int = 4
 
     backbone: str = "auto"
@@ -214,6 +222,7 @@ class DCDPConfig(PreTrainedConfig):
             raise ValueError(f"te_weight must be in (0, 1], got {self.te_weight}")
         _check_choice("backbone", self.backbone, BACKBONES)
         _check_choice("compiled_kernel", self.compiled_kernel, KERNEL_CHOICES)
+        _check_choice("motion_label", self.motion_label, MOTION_LABELS)
         for name in (
             "feature_dim",
             "state_hidden_dim",

@@ -258,7 +258,10 @@ class DCDPPolicy(PreTrainedPolicy):
                     raise ValueError(
                         f"feature mismatch: the base needs input {key!r}, "
                         "which the dataset/env does not provide "
-                        f"(has {sorted(cfg.input_features)})"
+                        f"(has {sorted(cfg.input_features)}). Fix: train on a dataset that records {key!r} "
+                        "(re-record or convert it with that feature), evaluate in an env observation type "
+                        "that reports it (PushT keypoints: --env.obs_type=environment_state_agent_pos), or "
+                        "wrap a base trained without it"
                     )
                 if tuple(cfg.input_features[key].shape) != tuple(ft.shape):
                     raise ValueError(
@@ -446,7 +449,8 @@ class DCDPPolicy(PreTrainedPolicy):
         Each sample is repeated ``motions_per_sample`` times; each copy gets a step s (plan time t-s, inside
         the episode), the demonstration's own chunk planned at t-s as the plan (or the base's chunk planned
         then, when ``plan_feature`` holds one per frame), its own rigid motion of the anchor keypoints
-        through the window, and the plan's action s carried with that motion as the target.
+        through the window, and as the target the plan's action s carried with the object's motion since plan
+        time (``motion_label``: the whole motion the moved keypoints show, or only the synthesised one).
 
         Returns:
             The moved batch, the plan (B', H, A) and step s (B',), the target (B', A) (all base-normalised)
@@ -506,6 +510,8 @@ class DCDPPolicy(PreTrainedPolicy):
         )
         moved, rot, shift = move_window(kp.reshape(b, k, -1, 2), k - 1 - step, velocity, turn)
         batch[key] = self._norm(key, moved.reshape(kp.shape))
+        if cfg.motion_label == "observed":  # the whole motion the moved keypoints show since plan time
+            rot, shift = rigid_fit_2d(moved[rows, k - 1 - step], moved[:, -1])
         plan_s = plan[rows, step]
         moving = (velocity != 0).any(-1) | (turn != 0)
         carried = self._norm(ACTION, anchor_actions(self._norm(ACTION, plan_s, inverse=True), rot, shift))

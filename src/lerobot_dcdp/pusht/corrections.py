@@ -5,8 +5,9 @@ deployment -- one chunk every H steps -- on PushT with the T block drifting, and
 labelled with what a teacher would do with the stale chunk. Per frame the dataset holds
 
 - ``observation.state``, ``observation.environment_state``: the observation of that step (raw);
-- ``observation.dcdp_plan`` (L, A) and ``observation.dcdp_plan_step`` (1,): the chunk as the base planned
-  it at the chunk start, and the step s of this frame in it;
+- ``observation.dcdp_plan`` (L * A,) and ``observation.dcdp_plan_step`` (1,): the chunk as the base planned
+  it at the chunk start (flattened, so LeRobot's ``merge_datasets`` can aggregate DAgger rounds), and the
+  step s of this frame in it;
 - ``action``: the teacher's action for step s; ``executed_action``: what was actually sent to the env;
 - ``next.reward``, ``next.success``, ``next.done``.
 
@@ -99,11 +100,8 @@ def features(plan_length: int, action_dim: int = 2) -> dict:
             "shape": (16,),
             "names": [f"kp{i // 2}_{'xy'[i % 2]}" for i in range(16)],
         },
-        "observation.dcdp_plan": {
-            "dtype": "float32",
-            "shape": (plan_length, action_dim),
-            "names": ["step", "action"],
-        },
+        # flat (L * A,): LeRobot's merge_datasets cannot copy a 2-D column (the policy reshapes it)
+        "observation.dcdp_plan": {"dtype": "float32", "shape": (plan_length * action_dim,), "names": None},
         "observation.dcdp_plan_step": {"dtype": "float32", "shape": (1,), "names": None},
         "action": {"dtype": "float32", "shape": (action_dim,), "names": xy},
         "executed_action": {"dtype": "float32", "shape": (action_dim,), "names": xy},
@@ -268,7 +266,7 @@ def _write_episode(ds, ep: dict) -> None:
             {
                 "observation.state": ep["state"][t],
                 "observation.environment_state": ep["kp"][t],
-                "observation.dcdp_plan": ep["plan"][t],
+                "observation.dcdp_plan": ep["plan"][t].reshape(-1),
                 "observation.dcdp_plan_step": np.array([ep["step"][t]], dtype=np.float32),
                 "action": ep["label"][t],
                 "executed_action": ep["exec"][t],
