@@ -1,17 +1,28 @@
 #!/usr/bin/env bash
 # FastUMI episodes -> LeRobotDataset -> (ACT base, unless you bring one) -> DCDP corrector, with the stock CLIs.
 #
+# What a FastUMI user can train. FastUMI records the wrist camera(s) and the gripper's pose, not the pose of the
+# object being handled. The corrector that helps (correction=residual, the default) learns from
+#   - an object's xy keypoints among the observations (ANCHOR=<observation key>): stage 1 synthesises the
+#     object's motion on these demonstrations (docs/METHOD.md); FastUMI data has none unless you add them;
+#   - or recorded corrections of the frozen base's stale chunks, which on a real robot means a person
+#     correcting it (HG-DAgger style) -- not provided by this project yet for real robots.
+# Without ANCHOR the script converts the data, trains the base, and stops, saying so; it does not train the
+# paper's reconstruction recipe (measured to make bases worse: docs/ANALYSIS.md). Add it yourself with
+# DCDP_FLAGS=--policy.correction=reconstruct ANCHOR=none if you want that row anyway.
+#
 # Usage: examples/fastumi_to_corrector.sh <fastumi dir> <work dir> [base pretrained_model dir]
 #   <fastumi dir>: <task>/episode_<idx>.hdf5 files (or episode_<idx>.hdf5), see docs/FASTUMI.md
 #   <work dir>:    gets data/ (the dataset), act/ (the base, if trained here) and dcdp/ (the corrector)
 #   base:          a chunking policy already trained on this dataset's features (skips the ACT training)
 # Settings (environment variables, defaults in brackets):
+#   ANCHOR [unset] observation key of the object's xy keypoints (or "none" with a correction in DCDP_FLAGS),
 #   STEPS [5000] corrector steps, BASE_STEPS [20000] base steps, BATCH [32], IMAGE_SIZE [224] frame side,
 #   ACTION [absolute] or delta (dcdp-fastumi-to-lerobot --action), DEVICE [cpu] or cuda,
 #   BASE_FLAGS / DCDP_FLAGS: extra lerobot-train flags for the base / corrector (e.g. smaller models).
 # Run inside the project's virtualenv (the commands are its console scripts).
 set -euo pipefail
-[ $# -ge 2 ] || { sed -n '4,7p' "$0" >&2; exit 2; }
+[ $# -ge 2 ] || { sed -n '/^# Usage:/,/^#   base:/p' "$0" >&2; exit 2; }
 input=$1; work=$2; base=${3:-}
 STEPS=${STEPS:-5000}; BASE_STEPS=${BASE_STEPS:-20000}; BATCH=${BATCH:-32}; DEVICE=${DEVICE:-cpu}
 data=$work/data
@@ -31,9 +42,17 @@ if [ -z "$base" ]; then
   base=$work/act/checkpoints/last/pretrained_model
 fi
 
-# 3. the DCDP corrector around the frozen base (images -> ResNet18 frame encoder, chosen automatically)
+# 3. the DCDP corrector around the frozen base
+if [ -z "${ANCHOR:-}" ]; then
+  echo "base: $base"
+  echo "no corrector trained: this data holds no object keypoints (set ANCHOR=<observation key> if it does);"
+  echo "see the header of $0 for what a corrector needs"
+  exit 0
+fi
+anchor=()
+[ "$ANCHOR" = none ] || anchor=("--policy.anchor_feature=$ANCHOR" "--policy.observation_features=[\"$ANCHOR\"]")
 # shellcheck disable=SC2086  # DCDP_FLAGS is a list of flags
-lerobot-train --policy.type=dcdp "--policy.base_policy_path=$base" "${common[@]}" "--steps=$STEPS" \
-  "--save_freq=$STEPS" "--output_dir=$work/dcdp" ${DCDP_FLAGS:-}
+lerobot-train --policy.type=dcdp "--policy.base_policy_path=$base" "${common[@]}" "${anchor[@]}" \
+  "--steps=$STEPS" "--save_freq=$STEPS" "--output_dir=$work/dcdp" ${DCDP_FLAGS:-}
 
 echo "corrector: $work/dcdp/checkpoints/last/pretrained_model (base: $base)"

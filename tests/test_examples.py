@@ -118,12 +118,35 @@ def test_fastumi_to_corrector(tmp_path: Path) -> None:
         cwd=tmp_path,
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    ckpt = work / "dcdp" / "checkpoints" / "last" / "pretrained_model"
+    info = json.loads((work / "data" / "meta" / "info.json").read_text())
+    assert (info["total_episodes"], info["total_frames"]) == (2, 60)
+    base = work / "act" / "checkpoints" / "last" / "pretrained_model"
+    assert json.loads((base / "config.json").read_text())["type"] == "act"
+    # no object keypoints in FastUMI data: no corrector is trained, and the script says why
+    assert "no corrector trained: this data holds no object keypoints" in proc.stdout
+    assert not (work / "dcdp").exists()
+
+    # what a user who opts into the paper's recipe gets (ANCHOR=none + an explicit correction)
+    env.update(ANCHOR="none", DCDP_FLAGS=tiny_dcdp + " --policy.correction=reconstruct")
+    proc = subprocess.run(
+        [
+            "bash",
+            str(EXAMPLES / "fastumi_to_corrector.sh"),
+            str(tmp_path / "raw"),
+            str(tmp_path / "w2"),
+            str(base),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+        cwd=tmp_path,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    ckpt = tmp_path / "w2" / "dcdp" / "checkpoints" / "last" / "pretrained_model"
     assert f"corrector: {ckpt}" in proc.stdout
     cfg = json.loads((ckpt / "config.json").read_text())
     assert cfg["base_policy_type"] == "act" and "observation.images.front" in cfg["input_features"]
-    info = json.loads((work / "data" / "meta" / "info.json").read_text())
-    assert (info["total_episodes"], info["total_frames"]) == (2, 60)
 
 
 def test_fastumi_to_corrector_usage() -> None:

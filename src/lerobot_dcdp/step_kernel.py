@@ -36,7 +36,23 @@ def cache_dir() -> Path:
     return Path(base) / "lerobot_dcdp" / "numba"
 
 
-os.environ.setdefault("NUMBA_CACHE_DIR", str(cache_dir()))
+def _usable_cache_dir() -> Path:
+    """Create the cache folder and prove it writable. numba itself would silently fall back to the package
+    folder (its in-tree locator) when the cache folder is unusable; raising here instead makes the policy
+    take the PyTorch path with one warning."""
+    folder = cache_dir()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / f".probe-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as err:
+        raise OSError(f"kernel cache {folder} is not a writable folder ({err}); set {CACHE_ENV}") from err
+    return folder
+
+
+if not os.environ.get("NUMBA_CACHE_DIR"):
+    os.environ["NUMBA_CACHE_DIR"] = str(_usable_cache_dir())
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402

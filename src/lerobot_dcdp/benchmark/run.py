@@ -1,7 +1,7 @@
 """``dcdp-benchmark``: every execution mode x every perturbation, 50 fixed seeds, one protocol.
 
-For each corrector given with ``--model LABEL=DIR`` (default: the shipped diffusion, paper-recipe and ACT
-correctors) the base it records is run as ``open_loop`` (H = 8), ``closed_loop`` (H = 1),
+For each corrector given with ``--model LABEL=DIR`` (default: the shipped diffusion, paper-recipe, ACT and
+demonstrations-only correctors) the base it records is run as ``open_loop`` (H = 8), ``closed_loop`` (H = 1),
 ``temporal_ensemble`` (H = 1, 0.5), ``object_anchored`` (H = 8, when the corrector names an anchor feature)
 and ``dcdp`` (H = 8) on static PushT and under constant / random block drift of 0.5 to 2.5 px per step;
 ``--delays 0 2 4`` adds a base that answers d control steps late (``inference_delay``).
@@ -31,9 +31,11 @@ DEFAULT_MODELS = {
     "diffusion": "models/pusht-dcdp-state",
     "diffusion_paper_recipe": "models/pusht-dcdp-state-paper-recipe",
     "act": "models/pusht-dcdp-act-state",
+    "diffusion_demos": "models/pusht-dcdp-state-demos",
+    "act_demos": "models/pusht-dcdp-act-state-demos",
 }
-#: the paper-recipe corrector shares its base with ``diffusion``: only its own DCDP row is run by default
-DEFAULT_METHODS = {"diffusion_paper_recipe": ["dcdp"]}
+#: these correctors share their base with ``diffusion`` / ``act``: only their own DCDP row is run by default
+DEFAULT_METHODS = {"diffusion_paper_recipe": ["dcdp"], "diffusion_demos": ["dcdp"], "act_demos": ["dcdp"]}
 
 
 def machine() -> dict:

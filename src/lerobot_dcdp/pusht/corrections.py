@@ -28,9 +28,16 @@ Teachers:
   translation of the block (``pusht_perturbed``), so this is the exact exogenous part of the block's motion:
   the push-induced motion the plan already expects is left alone, in every episode, static or not. The
   student has to tell drift from pushing from its observations.
+- ``teleop``: a LeRobot teleoperator's action for the current observation (``--teleop.type=...`` and its
+  ``--teleop.*`` flags): a person's corrections, HG-DAgger style. The registered ``pusht_expert``
+  teleoperator (the scripted expert, :mod:`lerobot_dcdp.teleoperators`) stands in for the person; it sees the
+  scene through ``send_feedback`` (the ``pusht_sim`` observation names). One teleoperator per parallel env.
+- ``policy``: a teacher policy's action for the current observation (``--teacher-policy=<pretrained_model
+  dir>``, any LeRobot policy type, with its own processors): a privileged or bigger policy.
 
-``execution`` picks who drives the env: ``object_anchored`` (the teacher), ``open_loop`` (the base) or
-``dcdp`` (a trained corrector: a DAgger round, visiting the states the learner visits).
+``execution`` picks who drives the env: ``object_anchored`` (the anchoring), ``open_loop`` (the base),
+``dcdp`` (a trained corrector: a DAgger round, visiting the states the learner visits) or ``teacher`` (the
+``teleop`` / ``policy`` teacher's own actions: the person drives).
 
 Drift per episode is drawn from the episode's seed: none with probability ``static_fraction``, else constant
 (direction uniform on the circle) or random (5 directions drawn uniformly, redrawn every 25/50/100 steps),
@@ -51,8 +58,10 @@ import torch
 from lerobot_dcdp.atomic_dataset import staged_dir
 from lerobot_dcdp.pusht.demos import EVAL_SEED_START, FPS, TASK
 
-EXECUTIONS = ("object_anchored", "open_loop", "dcdp")
-TEACHERS = ("object_anchored", "anchored_when_drifting", "drift_offset")
+EXECUTIONS = ("object_anchored", "open_loop", "dcdp", "teacher")
+TEACHERS = ("object_anchored", "anchored_when_drifting", "drift_offset", "teleop", "policy")
+#: Teachers that label each step online from the current observation (the others label in hindsight).
+ONLINE_TEACHERS = ("teleop", "policy")
 MARKER = ".dcdp_corrections"
 
 
@@ -160,6 +169,84 @@ def drift_offset_labels(
     return (plans[t, steps] + seen[target] - seen[plan_idx]).astype(np.float32)
 
 
+class TeleopTeacher:
+    """Labels from LeRobot teleoperators, one per parallel env (each keeps its own state).
+
+    Every step each teleoperator is shown the env's observation through ``send_feedback`` (as the
+    ``pusht_sim`` robot names it, when the teleoperator declares feedback features) and its ``get_action()``
+    (named like the robot's action, ``x.pos`` / ``y.pos``) is the label.
+    """
+
+    def __init__(self, config, n: int) -> None:
+        from lerobot.teleoperators.utils import make_teleoperator_from_config
+
+        from lerobot_dcdp.robots.pusht_sim import AGENT_NAMES
+
+        self.teleops = [make_teleoperator_from_config(config) for _ in range(n)]
+        names = tuple(self.teleops[0].action_features)
+        if names != AGENT_NAMES:
+            raise ValueError(
+                f"teleoperator {config.type!r} sends actions {names}; the PushT recorder needs {AGENT_NAMES} "
+                "(the agent's target, px)"
+            )
+        for t in self.teleops:
+            t.connect()
+
+    def reset(self, n: int) -> None:
+        for t in self.teleops[:n]:
+            if hasattr(t, "reset"):
+                t.reset()
+
+    def __call__(self, obs: list[dict], batch: dict, active: np.ndarray) -> np.ndarray:
+        from lerobot_dcdp.robots.pusht_sim import AGENT_NAMES, KEYPOINT_NAMES
+
+        out = np.zeros((len(obs), len(AGENT_NAMES)), dtype=np.float32)
+        for i in np.flatnonzero(active):
+            t = self.teleops[i]
+            if t.feedback_features:
+                feedback = dict(zip(AGENT_NAMES, obs[i]["agent_pos"].tolist(), strict=True))
+                feedback.update(zip(KEYPOINT_NAMES, obs[i]["environment_state"].tolist(), strict=True))
+                t.send_feedback(feedback)
+            action = t.get_action()
+            out[i] = [action[k] for k in AGENT_NAMES]
+        return out
+
+    def close(self) -> None:
+        for t in self.teleops:
+            if t.is_connected:
+                t.disconnect()
+
+
+class PolicyTeacher:
+    """Labels from a pretrained LeRobot policy (any type), run batched on the env's observations with its
+    own processors."""
+
+    def __init__(self, path: str | Path) -> None:
+        from lerobot.configs.policies import PreTrainedConfig
+        from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+        path = Path(path)
+        if not (path / "config.json").is_file():
+            raise ValueError(
+                f"--teacher-policy={path} (resolved {path.resolve()}) holds no config.json: give a "
+                "pretrained_model folder (e.g. <output_dir>/checkpoints/last/pretrained_model)"
+            )
+        cfg = PreTrainedConfig.from_pretrained(path)
+        cfg.device = "cpu"
+        self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
+        self.pre, self.post = make_pre_post_processors(cfg, pretrained_path=str(path))
+
+    def reset(self, n: int) -> None:
+        self.policy.reset()
+
+    @torch.no_grad()
+    def __call__(self, obs: list[dict], batch: dict, active: np.ndarray) -> np.ndarray:
+        return self.post(self.policy.select_action(self.pre(dict(batch)))).cpu().numpy().astype(np.float32)
+
+    def close(self) -> None:
+        pass
+
+
 @torch.no_grad()
 def rollout_corrections(
     policy,
@@ -171,10 +258,14 @@ def rollout_corrections(
     lookahead: int,
     weights: list[float] | None = None,
     teacher: str = "object_anchored",
+    online_teacher=None,
+    teacher_drives: bool = False,
 ) -> list[dict]:
     """Run one batch of episodes (lock-step) and return each episode's frames with teacher labels
     (``weights``: per episode, the share of the teacher's correction in the label; default 1;
-    ``teacher``: ``drift_offset`` labels with the applied drift, any other with the anchoring)."""
+    ``teacher``: ``drift_offset`` labels with the applied drift, ``teleop`` / ``policy`` with
+    ``online_teacher(obs, batch, active)``'s action for each step (executed instead of the policy's when
+    ``teacher_drives``), any other with the anchoring)."""
     from lerobot.envs.utils import preprocess_observation
 
     from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
@@ -187,15 +278,21 @@ def rollout_corrections(
     ]
     obs = [env.reset(seed=s)[0] for env, s in zip(envs, seeds, strict=True)]
     n = len(seeds)
-    keys = ("state", "kp", "plan", "step", "exec", "reward", "success", "offset")
+    keys = ("state", "kp", "plan", "step", "exec", "reward", "success", "offset", "teach")
     cols = [{k: [] for k in keys} for _ in seeds]
     active = np.ones(n, dtype=bool)
     torch.manual_seed(seeds[0])  # the base's sampling noise: the same command records the same data
     policy.reset()
+    if online_teacher is not None:
+        online_teacher.reset(n)
     for _ in range(max_steps):
         stacked = {k: np.stack([o[k] for o in obs]) for k in obs[0]}
-        batch = pre(preprocess_observation(stacked))
+        raw = preprocess_observation(stacked)
+        batch = pre(dict(raw))
         action = post(policy.select_action(batch)).cpu().numpy()
+        taught = None if online_teacher is None else online_teacher(obs, raw, active)
+        if taught is not None and teacher_drives:
+            action = taught
         plan = post(policy.planned_chunk).cpu().numpy()
         step = policy.last_step
         for i in np.flatnonzero(active):
@@ -205,6 +302,8 @@ def rollout_corrections(
             c["plan"].append(plan[i].astype(np.float32))
             c["step"].append(step)
             c["exec"].append(action[i].astype(np.float32))
+            if taught is not None:
+                c["teach"].append(taught[i].astype(np.float32))
             o, r, term, trunc, info = envs[i].step(action[i])
             obs[i] = o
             c["reward"].append(float(r))
@@ -228,7 +327,9 @@ def rollout_corrections(
         plan_s = plans[np.arange(len(steps)), steps]
         w = 1.0 if weights is None else float(weights[i])
         labels = plan_s.copy()
-        if w > 0 and teacher == "drift_offset":
+        if teacher in ONLINE_TEACHERS:
+            labels = plan_s + w * (np.stack(c["teach"]) - plan_s)
+        elif w > 0 and teacher == "drift_offset":
             labels = drift_offset_labels(plans, steps, np.stack(c["offset"]), lookahead)
             labels = plan_s + w * (labels - plan_s)
         elif w > 0:
@@ -319,8 +420,13 @@ def record_corrections(
     force: bool = False,
     progress: bool = True,
     ramp: float = 0.0,
+    teleop_config=None,
+    teacher_policy: str | Path | None = None,
 ) -> dict:
     """Record ``episodes`` episodes of stale chunks and teacher corrections to a LeRobotDataset at ``root``.
+
+    ``teleop_config`` (a LeRobot ``TeleoperatorConfig``) is the ``teleop`` teacher, ``teacher_policy`` (a
+    ``pretrained_model`` folder) the ``policy`` teacher.
 
     Raises:
         ValueError: bad arguments, seeds reaching the evaluation seeds, or an existing ``root`` that is not an
@@ -340,6 +446,19 @@ def record_corrections(
         )
     if ramp < 0:
         raise ValueError(f"ramp must be >= 0, got {ramp}")
+    if teacher == "teleop" and teleop_config is None:
+        raise ValueError("teacher='teleop' needs a teleoperator: --teleop.type=<type> (e.g. pusht_expert)")
+    if teacher == "policy" and teacher_policy is None:
+        raise ValueError("teacher='policy' needs --teacher-policy=<pretrained_model folder>")
+    if teacher != "teleop" and teleop_config is not None:
+        raise ValueError(f"--teleop.* is given but teacher={teacher!r}: pass --teacher=teleop")
+    if teacher != "policy" and teacher_policy is not None:
+        raise ValueError(f"--teacher-policy is given but teacher={teacher!r}: pass --teacher=policy")
+    if execution == "teacher" and teacher not in ONLINE_TEACHERS:
+        raise ValueError(
+            f"execution='teacher' lets the teacher drive, which needs teacher in {ONLINE_TEACHERS}; "
+            f"teacher={teacher!r} drives with execution='object_anchored'"
+        )
     if lookahead < 0:
         raise ValueError(f"lookahead must be >= 0, got {lookahead}")
     if not max_magnitude >= 0 or not 0.0 <= static_fraction <= 1.0:
@@ -359,55 +478,67 @@ def record_corrections(
             )
         if not force:
             raise ValueError(f"root={root} already exists; pass --force to overwrite it")
-    policy, pre, post = load_policy(policy_path, base_path, execution, "observation.environment_state")
+    drive = "open_loop" if execution == "teacher" else execution
+    policy, pre, post = load_policy(policy_path, base_path, drive, "observation.environment_state")
     horizon = policy.config.n_action_steps
     seeds = list(range(seed, seed + episodes))
     specs = [drift_for_seed(s, max_magnitude, static_fraction) for s in seeds]
     frames = 0
     gap = []
-    with staged_dir(root) as tmp_root:
-        ds = LeRobotDataset.create(
-            repo_id=repo_id,
-            fps=FPS,
-            features=features(horizon),
-            root=tmp_root,
-            robot_type="pusht",
-            use_videos=False,
-        )
-        bar = tqdm(total=episodes, desc=f"episodes ({execution})", disable=not progress)
-        gated = teacher == "anchored_when_drifting"
-        groups = [(False, [i for i, sp in enumerate(specs) if not (gated and sp.perturbation == "none")])]
-        groups.append((True, [i for i, sp in enumerate(specs) if gated and sp.perturbation == "none"]))
-        for plan_labels, idx in groups:
-            policy.config.execution = "open_loop" if plan_labels and execution != "dcdp" else execution
-            weight = [0.0 if plan_labels else _weight(specs[i], gated, ramp) for i in idx]
-            for j in range(0, len(idx), batch_size):
-                part = idx[j : j + batch_size]
-                for ep in rollout_corrections(
-                    policy,
-                    pre,
-                    post,
-                    [seeds[i] for i in part],
-                    [specs[i] for i in part],
-                    max_steps,
-                    lookahead,
-                    weight[j : j + batch_size],
-                    teacher,
-                ):
-                    _write_episode(ds, ep)
-                    frames += len(ep["step"])
-                    gap.append(
-                        np.linalg.norm(
-                            ep["label"] - ep["plan"][np.arange(len(ep["step"])), ep["step"]], axis=-1
+    online = None
+    if teacher == "teleop":
+        online = TeleopTeacher(teleop_config, min(batch_size, episodes))
+    elif teacher == "policy":
+        online = PolicyTeacher(teacher_policy)
+    try:
+        with staged_dir(root) as tmp_root:
+            ds = LeRobotDataset.create(
+                repo_id=repo_id,
+                fps=FPS,
+                features=features(horizon),
+                root=tmp_root,
+                robot_type="pusht",
+                use_videos=False,
+            )
+            bar = tqdm(total=episodes, desc=f"episodes ({execution})", disable=not progress)
+            gated = teacher == "anchored_when_drifting"
+            groups = [(False, [i for i, sp in enumerate(specs) if not (gated and sp.perturbation == "none")])]
+            groups.append((True, [i for i, sp in enumerate(specs) if gated and sp.perturbation == "none"]))
+            for plan_labels, idx in groups:
+                policy.config.execution = "open_loop" if plan_labels and execution != "dcdp" else drive
+                weight = [0.0 if plan_labels else _weight(specs[i], gated, ramp) for i in idx]
+                for j in range(0, len(idx), batch_size):
+                    part = idx[j : j + batch_size]
+                    for ep in rollout_corrections(
+                        policy,
+                        pre,
+                        post,
+                        [seeds[i] for i in part],
+                        [specs[i] for i in part],
+                        max_steps,
+                        lookahead,
+                        weight[j : j + batch_size],
+                        teacher,
+                        online,
+                        teacher_drives=execution == "teacher",
+                    ):
+                        _write_episode(ds, ep)
+                        frames += len(ep["step"])
+                        gap.append(
+                            np.linalg.norm(
+                                ep["label"] - ep["plan"][np.arange(len(ep["step"])), ep["step"]], axis=-1
+                            )
                         )
-                    )
-                    bar.update(1)
-        bar.close()
-        ds.finalize()
-        (tmp_root / MARKER).write_text(
-            f"execution={execution} teacher={teacher} lookahead={lookahead} "
-            f"seeds={seed}..{seed + episodes - 1}\n"
-        )
+                        bar.update(1)
+            bar.close()
+            ds.finalize()
+            (tmp_root / MARKER).write_text(
+                f"execution={execution} teacher={teacher} lookahead={lookahead} "
+                f"seeds={seed}..{seed + episodes - 1}\n"
+            )
+    finally:
+        if online is not None:
+            online.close()
     gap_all = np.concatenate(gap)
     return {
         "episodes": episodes,
@@ -416,6 +547,31 @@ def record_corrections(
         "mean_correction_px": float(gap_all.mean()),
         "p90_correction_px": float(np.percentile(gap_all, 90)),
     }
+
+
+def parse_teleop_args(args: list[str]):
+    """LeRobot's ``--teleop.type=<type> --teleop.<field>=<value>`` flags as a ``TeleoperatorConfig`` (``None``
+    when there are none); any other leftover flag is an error naming it."""
+    from dataclasses import make_dataclass
+
+    import draccus
+    from lerobot.teleoperators.config import TeleoperatorConfig
+
+    unknown = [x for x in args if not x.startswith("--teleop.")]
+    if unknown:
+        raise ValueError(f"unrecognized arguments: {' '.join(unknown)}")
+    if not args:
+        return None
+    if not any(x.startswith("--teleop.type=") for x in args):
+        known = ", ".join(sorted(TeleoperatorConfig.get_known_choices()))
+        raise ValueError(f"--teleop.* flags need --teleop.type=<one of: {known}>")
+
+    args_class = make_dataclass("TeleopArgs", [("teleop", TeleoperatorConfig)])
+    try:
+        return draccus.parse(config_class=args_class, args=args).teleop
+    except (draccus.utils.ParsingError, SystemExit, ValueError) as err:
+        cause = err.__cause__ or err
+        raise ValueError(f"bad --teleop.* flags ({' '.join(args)}): {cause}") from err
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -443,8 +599,21 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--batch-size", type=int, default=50, help="envs rolled out together")
     p.add_argument("--max-steps", type=int, default=300)
     p.add_argument("--force", action="store_true", help="overwrite an earlier output at --root")
-    a = p.parse_args(argv)
+    p.add_argument(
+        "--teacher-policy",
+        default=None,
+        help="teacher=policy: a pretrained_model folder of any LeRobot policy",
+    )
+    p.epilog = (
+        "teacher=teleop takes LeRobot's teleoperator flags: --teleop.type=<type> (e.g. pusht_expert) and "
+        "--teleop.<field>=<value>"
+    )
+    a, rest = p.parse_known_args(argv)
     torch.set_num_threads(1)
+    try:
+        teleop = parse_teleop_args(rest)
+    except ValueError as e:
+        p.error(str(e))
     try:
         info = record_corrections(
             a.root,
@@ -462,12 +631,21 @@ def main(argv: list[str] | None = None) -> None:
             a.max_steps,
             a.force,
             ramp=a.ramp,
+            teleop_config=teleop,
+            teacher_policy=a.teacher_policy,
         )
     except ValueError as e:
         sys.exit(f"dcdp-record-corrections: error: {e}")
+    root = Path(info["root"]).resolve()
+    base = a.base or f"<the base of {a.policy}>"
     print(
-        f"wrote {info['episodes']} episodes ({info['frames']} frames) to {info['root']}; teacher correction "
-        f"mean {info['mean_correction_px']:.2f} px, p90 {info['p90_correction_px']:.2f} px"
+        f"wrote {info['episodes']} episodes ({info['frames']} frames) to {root} as repo id {a.repo_id}; "
+        f"teacher correction mean {info['mean_correction_px']:.2f} px, "
+        f"p90 {info['p90_correction_px']:.2f} px\n"
+        f"train a corrector on it:\n  lerobot-train --policy.type=dcdp --policy.base_policy_path={base} "
+        f"--policy.anchor_feature=observation.environment_state --dataset.repo_id={a.repo_id} "
+        f"--dataset.root={root} --batch_size=128 --steps=1000 --policy.push_to_hub=false "
+        "--output_dir=runs/dcdp"
     )
 
 
