@@ -26,7 +26,9 @@ from lerobot_dcdp.correction import unnormalize
 
 
 @torch.no_grad()
-def base_plans(base_path: str, dataset, episodes_per_batch: int = 64, seed: int = 0) -> np.ndarray:
+def base_plans(
+    base_path: str, dataset, episodes_per_batch: int = 64, seed: int = 0, transform=None
+) -> np.ndarray:
     """The base's raw chunk (N, L * A) planned at each of the dataset's N frames (global index order).
 
     Args:
@@ -34,6 +36,8 @@ def base_plans(base_path: str, dataset, episodes_per_batch: int = 64, seed: int 
         dataset: A ``LeRobotDataset`` holding every input the base reads.
         episodes_per_batch: Episodes run side by side (one frame of each per base call).
         seed: Seeds the base's sampling noise (diffusion), so the column is reproducible.
+        transform: Applied to every frame before the base reads it (e.g. a split of a robot's flattened
+            state); ``None``: the frames as stored.
     """
     from lerobot.policies.factory import make_pre_post_processors
     from lerobot.utils.constants import ACTION
@@ -46,11 +50,11 @@ def base_plans(base_path: str, dataset, episodes_per_batch: int = 64, seed: int 
     mode, stats = load_base_stats(base_path).get(ACTION, ("IDENTITY", {}))
     source = make_chunk_source(base)
     keys = list(base.config.input_features)
-    missing = [k for k in keys if k not in dataset.meta.features]
+    read = dataset.__getitem__ if transform is None else (lambda i: transform(dataset[i]))
+    available = dataset.meta.features if transform is None else read(0)
+    missing = [k for k in keys if k not in available]
     if missing:
-        raise ValueError(
-            f"the dataset has no {missing}, which the base reads (it has {sorted(dataset.meta.features)})"
-        )
+        raise ValueError(f"the dataset has no {missing}, which the base reads (it has {sorted(available)})")
     episode_of = np.asarray(dataset.hf_dataset["episode_index"])
     episodes = [np.flatnonzero(episode_of == e) for e in np.unique(episode_of)]  # global indices per episode
     out = np.zeros((len(episode_of), source.chunk_length * base.config.action_feature.shape[0]), np.float32)
@@ -62,7 +66,7 @@ def base_plans(base_path: str, dataset, episodes_per_batch: int = 64, seed: int 
             source.reset()
             for k in range(max(len(g) for g in group)):
                 rows = [g[min(k, len(g) - 1)] for g in group]  # an ended episode repeats its last frame
-                frames = [dataset[int(i)] for i in rows]
+                frames = [read(int(i)) for i in rows]
                 batch = {key: torch.stack([f[key] for f in frames]) for key in keys}
                 chunk = source.chunk(source.observe(pre(batch)))  # (B, L, A) base-normalised
                 raw = unnormalize(chunk, stats, mode) if stats else chunk

@@ -328,7 +328,8 @@ def rollout_corrections(
         w = 1.0 if weights is None else float(weights[i])
         labels = plan_s.copy()
         if teacher in ONLINE_TEACHERS:
-            labels = plan_s + w * (np.stack(c["teach"]) - plan_s)
+            taught_ep = np.stack(c["teach"])
+            labels = taught_ep if w == 1.0 else plan_s + w * (taught_ep - plan_s)
         elif w > 0 and teacher == "drift_offset":
             labels = drift_offset_labels(plans, steps, np.stack(c["offset"]), lookahead)
             labels = plan_s + w * (labels - plan_s)

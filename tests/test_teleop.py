@@ -1,0 +1,231 @@
+"""The person-in-the-loop and teacher-policy paths of stage 1: the ``pusht_expert`` teleoperator behind
+LeRobot's interface, and ``dcdp-record-corrections --teacher=teleop|policy`` feeding the real CLIs."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from helpers import tiny_train_flags
+
+from lerobot_dcdp.robots.pusht_sim import AGENT_NAMES, KEYPOINT_NAMES
+from lerobot_dcdp.teleoperators import PushTExpert, PushTExpertConfig
+from lerobot_dcdp.teleoperators.pusht_expert import block_pose_from_keypoints
+
+BIN = Path(sys.executable).parent
+ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
+
+
+def run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=600, env=ENV, cwd=cwd)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-6000:]
+    return proc
+
+
+def _feedback(obs: dict) -> dict:
+    fb = dict(zip(AGENT_NAMES, obs["agent_pos"].tolist(), strict=True))
+    fb.update(zip(KEYPOINT_NAMES, obs["environment_state"].tolist(), strict=True))
+    return fb
+
+
+def test_block_pose_is_recovered_from_its_keypoints() -> None:
+    from lerobot_dcdp.pusht.geometry import keypoints
+
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        pose = np.array([*rng.uniform(50, 450, 2), rng.uniform(-math.pi, math.pi)])
+        fit = block_pose_from_keypoints(keypoints(pose))
+        assert np.allclose(fit[:2], pose[:2], atol=1e-9)
+        assert abs((fit[2] - pose[2] + math.pi) % (2 * math.pi) - math.pi) < 1e-9
+    with pytest.raises(ValueError, match="8 block keypoints"):
+        block_pose_from_keypoints(np.zeros((7, 2)))
+
+
+def test_config_and_feedback_errors_name_the_problem() -> None:
+    with pytest.raises(ValueError, match="replan_every must be >= 1"):
+        PushTExpertConfig(replan_every=0)
+    teleop = PushTExpert(PushTExpertConfig())
+    assert str(teleop) == "pusht_expert PushTExpert"
+    teleop.connect()
+    with pytest.raises(RuntimeError, match=r"call send_feedback\(observation\) before get_action"):
+        teleop.get_action()
+    with pytest.raises(ValueError, match="missing .*kp0_x.pos"):
+        teleop.send_feedback({"x.pos": 1.0, "y.pos": 2.0})
+    teleop.disconnect()
+
+
+def test_the_scripted_teleoperator_completes_a_static_episode_from_observations_alone() -> None:
+    """It sees only the observation (keypoints, agent position) through send_feedback, sends smooth
+    targets (at most max_step apart) and completes the task."""
+    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
+
+    cfg = PushTExpertConfig(replan_every=8)
+    env = make_perturbed_env(obs_type="environment_state_agent_pos", max_episode_steps=300)
+    obs, _ = env.reset(seed=100_000)
+    with PushTExpert(cfg) as teleop:
+        previous, success = None, False
+        for _ in range(300):
+            teleop.send_feedback(_feedback(obs))
+            action = teleop.get_action()
+            assert set(action) == set(AGENT_NAMES)
+            target = np.array([action["x.pos"], action["y.pos"]])
+            if previous is not None:
+                assert np.linalg.norm(target - previous) <= cfg.max_step + 1e-6
+            previous = target
+            obs, _, terminated, truncated, info = env.step(target)
+            if info["is_success"] or terminated or truncated:
+                success = bool(info["is_success"])
+                break
+        assert success and teleop.plans >= 2
+    env.close()
+
+
+def test_teleoperator_is_discovered_like_the_robot() -> None:
+    """LeRobot's plugin discovery and teleoperator factory build it from ``--teleop.type=pusht_expert``."""
+    code = (
+        "from lerobot.utils.import_utils import register_third_party_plugins as r; r();"
+        "import draccus;"
+        "from lerobot.teleoperators.config import TeleoperatorConfig;"
+        "from lerobot.teleoperators.utils import make_teleoperator_from_config;"
+        "cfg = draccus.decode(TeleoperatorConfig, {'type': 'pusht_expert', 'replan_every': 4});"
+        "t = make_teleoperator_from_config(cfg);"
+        "print(type(t).__name__, t.config.replan_every, sorted(t.action_features))"
+    )
+    proc = run([sys.executable, "-c", code], cwd=Path.cwd())
+    assert proc.stdout.split()[-4:] == ["PushTExpert", "4", "['x.pos',", "'y.pos']"]
+
+
+@pytest.mark.slow
+def test_teleoperated_corrections_train_and_evaluate_through_the_clis(diffusion_base, tmp_path) -> None:
+    """dcdp-record-corrections with the scripted teleoperator driving (HG-DAgger's person), then the stock
+    lerobot-train and lerobot-eval on what it recorded."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    data = tmp_path / "teleop"
+    proc = run(
+        [
+            str(BIN / "dcdp-record-corrections"),
+            f"--root={data}",
+            "--repo-id=local/teleop",
+            f"--base={diffusion_base}",
+            "--teacher=teleop",
+            "--teleop.type=pusht_expert",
+            "--teleop.replan_every=4",
+            "--execution=teacher",
+            "--episodes=2",
+            "--batch-size=2",
+            "--max-steps=12",
+        ],
+        cwd=tmp_path,
+    )
+    assert "--dataset.repo_id=local/teleop" in proc.stdout
+    ds = LeRobotDataset("local/teleop", root=data)
+    assert ds.meta.total_episodes == 2
+    labels = torch.stack([ds[i]["action"] for i in range(len(ds))])
+    executed = torch.stack([ds[i]["executed_action"] for i in range(len(ds))])
+    assert torch.equal(labels, executed)  # the person drove: what was sent is the label
+    plans = torch.stack(
+        [
+            ds[i]["observation.dcdp_plan"].reshape(-1, 2)[int(ds[i]["observation.dcdp_plan_step"])]
+            for i in range(len(ds))
+        ]
+    )
+    assert (labels - plans).norm(dim=-1).mean() > 1.0  # the labels are the person's, not the base's plan
+
+    out = tmp_path / "train"
+    run(
+        [
+            str(BIN / "lerobot-train"),
+            "--policy.type=dcdp",
+            f"--policy.base_policy_path={diffusion_base}",
+            "--policy.feature_dim=32",
+            "--policy.n_heads=4",
+            f"--output_dir={out}",
+            *tiny_train_flags("local/teleop", data),
+        ],
+        cwd=tmp_path,
+    )
+    ckpt = out / "checkpoints" / "last" / "pretrained_model"
+    assert json.loads((ckpt / "config.json").read_text())["correction"] == "residual"
+    evaluation = tmp_path / "eval"
+    run(
+        [
+            str(BIN / "lerobot-eval"),
+            f"--policy.path={ckpt}",
+            "--env.type=pusht_perturbed",
+            "--env.perturbation=constant",
+            "--env.obs_type=environment_state_agent_pos",
+            "--env.episode_length=10",
+            "--eval.n_episodes=1",
+            "--eval.batch_size=1",
+            "--eval.use_async_envs=false",
+            "--policy.device=cpu",
+            f"--output_dir={evaluation}",
+        ],
+        cwd=tmp_path,
+    )
+    assert json.loads((evaluation / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
+
+
+def test_a_teacher_policy_labels_every_step_with_its_own_action(diffusion_base, act_base, tmp_path) -> None:
+    """--teacher=policy: the labels are exactly the teacher policy's select_action on the recorded
+    observations (ACT is deterministic), and with execution=teacher they are what was executed."""
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    from lerobot_dcdp.pusht.corrections import record_corrections
+
+    root = tmp_path / "taught"
+    record_corrections(
+        root,
+        "local/taught",
+        base_path=str(diffusion_base),
+        episodes=1,
+        seed=3,
+        teacher="policy",
+        teacher_policy=str(act_base),
+        execution="teacher",
+        batch_size=1,
+        max_steps=10,
+        progress=False,
+    )
+    ds = LeRobotDataset("local/taught", root=root)
+    cfg = PreTrainedConfig.from_pretrained(act_base)
+    teacher = get_policy_class(cfg.type).from_pretrained(act_base, config=cfg).eval()
+    pre, post = make_pre_post_processors(cfg, pretrained_path=str(act_base))
+    teacher.reset()
+    for i in range(len(ds)):
+        item = ds[i]
+        obs = {k: item[k].unsqueeze(0) for k in ("observation.state", "observation.environment_state")}
+        with torch.no_grad():
+            expected = post(teacher.select_action(pre(obs)))[0]
+        torch.testing.assert_close(item["action"], expected, atol=1e-4, rtol=0)
+        torch.testing.assert_close(item["executed_action"], item["action"])
+
+
+def test_recorder_flag_errors_name_the_fix(diffusion_base, tmp_path) -> None:
+    from lerobot_dcdp.pusht.corrections import parse_teleop_args, record_corrections
+
+    with pytest.raises(ValueError, match="needs a teleoperator: --teleop.type"):
+        record_corrections(tmp_path / "a", base_path=str(diffusion_base), teacher="teleop", episodes=1)
+    with pytest.raises(ValueError, match="needs --teacher-policy"):
+        record_corrections(tmp_path / "a", base_path=str(diffusion_base), teacher="policy", episodes=1)
+    with pytest.raises(ValueError, match="execution='teacher' lets the teacher drive"):
+        record_corrections(tmp_path / "a", base_path=str(diffusion_base), execution="teacher", episodes=1)
+    with pytest.raises(ValueError, match="holds no config.json"):
+        record_corrections(
+            tmp_path / "a", base_path=str(diffusion_base), teacher="policy", teacher_policy=str(tmp_path)
+        )
+    with pytest.raises(ValueError, match="need --teleop.type=<one of: .*pusht_expert"):
+        parse_teleop_args(["--teleop.replan_every=3"])
+    with pytest.raises(ValueError, match="unrecognized arguments: --tele.type=x"):
+        parse_teleop_args(["--tele.type=x"])
+    assert parse_teleop_args(["--teleop.type=pusht_expert", "--teleop.seed=5"]).seed == 5
