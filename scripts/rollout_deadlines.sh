@@ -10,6 +10,7 @@
 # after a late tick).
 # Usage: scripts/rollout_deadlines.sh [corrector dir]    (default models/pusht-dcdp-state)
 #   env: FPS=10 DURATION=30 MODES="open_loop dcdp object_anchored temporal_ensemble closed_loop"
+#        PLANNING=sync|async (--policy.planning; async applies to open_loop, dcdp, object_anchored)
 #        PERTURBATION=constant MAGNITUDE=2.0 OUT=runs/rollout_deadlines
 #        LEROBOT_ROLLOUT=.venv/bin/lerobot-rollout (the CLI to run)
 # Writes $OUT/<mode>.log and $OUT/summary.md (also printed).
@@ -18,9 +19,10 @@ policy=${1:-models/pusht-dcdp-state}
 FPS=${FPS:-10}; DURATION=${DURATION:-30}; OUT=${OUT:-runs/rollout_deadlines}
 MODES=${MODES:-open_loop dcdp object_anchored temporal_ensemble closed_loop}
 LEROBOT_ROLLOUT=${LEROBOT_ROLLOUT:-.venv/bin/lerobot-rollout}
+PLANNING=${PLANNING:-sync}
 mkdir -p "$OUT"
 {
-  echo "policy \`$policy\`, ${FPS} Hz, ${DURATION} s per mode, ${PERTURBATION:-constant} drift ${MAGNITUDE:-2.0} px/step,"
+  echo "policy \`$policy\`, planning=${PLANNING}, ${FPS} Hz, ${DURATION} s per mode, ${PERTURBATION:-constant} drift ${MAGNITUDE:-2.0} px/step,"
   echo "$(nproc) CPUs, OMP_NUM_THREADS=1, load average before: $(cut -d' ' -f1-3 /proc/loadavg), $(date -u +%FT%TZ)"
   echo
   echo "| mode | ticks | missed deadlines (LeRobot warnings) | missed % | slowest tick ms | held sim steps | superseded actions | max coverage |"
@@ -30,7 +32,7 @@ for mode in $MODES; do
   log=$OUT/$mode.log
   OMP_NUM_THREADS=1 HF_HUB_OFFLINE=1 "$LEROBOT_ROLLOUT" --robot.type=pusht_sim \
     --robot.perturbation="${PERTURBATION:-constant}" --robot.magnitude="${MAGNITUDE:-2.0}" \
-    --policy.path="$policy" --policy.execution="$mode" --fps="$FPS" --duration="$DURATION" \
+    --policy.path="$policy" --policy.execution="$mode" --policy.planning="$PLANNING" --fps="$FPS" --duration="$DURATION" \
     --return_to_initial_position=false --play_sounds=false > "$log" 2>&1 \
     || { echo "rollout failed for $mode, see $log" >&2; exit 1; }
   summary=$(grep -o "PushTSim disconnected: .*" "$log") \

@@ -13,6 +13,10 @@ EXECUTION_MODES = ("dcdp", "open_loop", "closed_loop", "temporal_ensemble", "obj
 CORRECTIONS = ("reconstruct", "residual")
 BACKBONES = ("auto", "mlp", "resnet18")
 KERNEL_CHOICES = ("auto", "on", "off")
+PLANNING_MODES = ("sync", "async")
+PLANNING_CLOCKS = ("wall", "steps")
+#: Execution modes that run one chunk for several ticks (the ones asynchronous planning applies to).
+CHUNK_MODES = ("dcdp", "open_loop", "object_anchored")
 MOTION_LABELS = ("observed", "added")
 
 
@@ -57,6 +61,20 @@ class DCDPConfig(PreTrainedConfig):
             t = 0, from step 0), and its entries for the steps already past are skipped, so the base must
             return n_action_steps + d actions. Every execution mode honours it; ``object_anchored`` and
             ``dcdp`` measure the change since that observation, which is what they correct.
+        planning: ``sync`` (default): the base plans on the control tick that needs the chunk. ``async``
+            (``dcdp``, ``open_loop`` and ``object_anchored``): the base plans the next chunk on a worker
+            thread from the observation of a tick shortly before the current chunk ends, while every tick
+            returns its action at once; the new chunk is used from the tick after it is ready and the current
+            chunk has run its ``n_action_steps`` (until then the current one keeps being executed, its last
+            step held and corrected), its entries for the ticks past since its observation skipped, and the
+            corrector measures the change since that observation. Only an episode's first chunk is planned
+            on the tick.
+        planning_clock: How ``async`` planning tells a chunk's age. ``wall`` (default; ``lerobot-rollout``):
+            planning starts ``ceil(planning time / tick period) + 1`` ticks before the chunk ends (both
+            measured as it runs) and a chunk is used once the worker returns it. ``steps`` (``lerobot-eval``,
+            benchmarks: reproducible): planning starts ``inference_delay`` ticks before the chunk ends and
+            its chunk is used exactly ``inference_delay`` ticks after its observation (the tick waits for the
+            worker if it is slower), the same actions as ``planning=sync`` with that ``inference_delay``.
         te_weight: Weight of the newest prediction in ``temporal_ensemble`` (authors: 0.5).
         correction: How the corrector produces action s of a chunk. ``residual`` (default; ours, see
             docs/METHOD.md): ``a_s = plan_s + delta(z, plan_s, F_{t+s}, change since plan time, e_s)``
@@ -134,6 +152,8 @@ class DCDPConfig(PreTrainedConfig):
     n_action_steps: int = 8
     execution: str = "dcdp"
     inference_delay: int = 0
+    planning: str = "sync"
+    planning_clock: str = "wall"
     te_weight: float = 0.5
     correction: str = "residual"
     anchor_feature: str | None = None
@@ -198,6 +218,13 @@ class DCDPConfig(PreTrainedConfig):
         if self.inference_delay < 0:
             raise ValueError(f"inference_delay must be >= 0 control steps, got {self.inference_delay}")
         _check_choice("execution", self.execution, EXECUTION_MODES)
+        _check_choice("planning", self.planning, PLANNING_MODES)
+        _check_choice("planning_clock", self.planning_clock, PLANNING_CLOCKS)
+        if self.planning == "async" and self.execution not in CHUNK_MODES:
+            raise ValueError(
+                f"planning='async' applies to the chunk modes {CHUNK_MODES}; execution={self.execution!r} "
+                "replans every step (use --policy.planning=sync)"
+            )
         _check_choice("correction", self.correction, CORRECTIONS)
         if self.execution == "object_anchored" and not self.anchor_feature:
             raise ValueError(

@@ -37,7 +37,7 @@ from lerobot_dcdp.base_policy import (
     resolve_base_reference,
 )
 from lerobot_dcdp.chunk_sources import ChunkSource, make_chunk_source
-from lerobot_dcdp.configuration_dcdp import DCDPConfig
+from lerobot_dcdp.configuration_dcdp import CHUNK_MODES, DCDPConfig
 from lerobot_dcdp.correction import (
     action_range,
     anchor_actions,
@@ -53,6 +53,7 @@ from lerobot_dcdp.correction import (
 )
 from lerobot_dcdp.dynamics import DynamicFeatureExtractor, FrameEncoder, diff_loss
 from lerobot_dcdp.motion_synthesis import draw_motions, keypoint_extent, move_window
+from lerobot_dcdp.planner import BackgroundPlanner
 from lerobot_dcdp.residual import ResidualHead, change_input
 
 NORMALIZER_STATS = ("min", "max", "mean", "std", "q01", "q99", "q10", "q90")
@@ -168,6 +169,7 @@ class DCDPPolicy(PreTrainedPolicy):
         self._packed: tuple[tuple, object] | None = None  # (weight versions, step_kernel.StepWeights)
         self._kernel_supported: bool | None = None  # step_kernel.supports(...) of these modules, once known
         self._kernel = None  # the packed weights while the current chunk runs on the kernel, else None
+        self._planner: BackgroundPlanner | None = None  # planning='async': created on first use
         self.register_buffer("action_half_range", 0.5 * (high - low), persistent=False)
         self.reset()
 
@@ -606,6 +608,11 @@ class DCDPPolicy(PreTrainedPolicy):
         self._t = 0  # control steps since reset
         self._past: deque[dict] = deque(maxlen=self.config.inference_delay + 1)  # steps t-d .. t
         self.last_step: int | None = None
+        if getattr(self, "_planner", None) is not None:
+            self._planner.cancel()
+        self._tick_at: float | None = None  # planning='async', wall clock: last tick's time
+        self._tick_s: float | None = None  # smoothed tick period (s)
+        self._plan_s: float | None = None  # smoothed planning time of the base (s)
 
     def _check_batch(self, batch: dict[str, Tensor]) -> None:
         missing = [k for k in self._needed_keys if k not in batch]
@@ -709,6 +716,8 @@ class DCDPPolicy(PreTrainedPolicy):
         """One action (B, A) per environment for the current step (normalised; the post-processor maps it)."""
         self._check_batch(batch)
         cfg = self.config
+        if cfg.planning == "async":
+            return self._select_async(batch)
         mode, horizon = cfg.execution, cfg.n_action_steps
         prepared = self.source.observe(batch)
         if mode == "dcdp" and self._step != 0 and self._step_graph is not None:
@@ -767,6 +776,92 @@ class DCDPPolicy(PreTrainedPolicy):
             return self.residual_step(feature, step, batch)
         return self.decode_step(feature, step)
 
+    # ------------------------------------------------------------ asynchronous planning (planner.py)
+    def _select_async(self, batch: dict[str, Tensor]) -> Tensor:
+        """``planning='async'``: the action of the chunk being executed, at once; the next chunk is planned on
+        the worker thread (see ``DCDPConfig.planning``)."""
+        cfg = self.config
+        mode, horizon = cfg.execution, cfg.n_action_steps
+        if mode not in CHUNK_MODES:
+            raise ValueError(f"planning='async' applies to the chunk modes {CHUNK_MODES}, not {mode!r}")
+        now = time.perf_counter()
+        if self._tick_at is not None:
+            self._tick_s = _smoothed(self._tick_s, now - self._tick_at)
+        self._tick_at = now
+        prepared = self.source.observe(batch)
+        if mode == "dcdp":
+            self._push_frame(batch)
+        anchored = mode == "object_anchored" or (mode == "dcdp" and cfg.anchor_input)
+        context = (self._rep, self._anchor_points(batch) if anchored else None)
+        t = self._t
+        if self._chunk is None:  # an episode's first chunk: nothing to execute yet, planned on this tick
+            started = time.perf_counter()
+            chunk = self.source.chunk(prepared, horizon)
+            self._plan_s = _smoothed(self._plan_s, time.perf_counter() - started)
+            self._use_chunk(chunk, context)
+        else:
+            if self._planner is None:
+                self._planner = BackgroundPlanner(self.source)
+            planner = self._planner
+            if not planner.pending and self._step >= horizon - self._planning_lead():
+                planner.submit(t, prepared, self.source.snapshot(), self.source.max_length, context)
+            if planner.pending and self._step >= horizon:
+                if cfg.planning_clock == "steps":
+                    due = t - planner.t_obs >= cfg.inference_delay
+                    job = planner.take(wait=True) if due else None
+                else:
+                    job = planner.take(wait=False)
+                if job is not None:
+                    self._plan_s = _smoothed(self._plan_s, job.seconds)
+                    age = t - job.t_obs
+                    self._use_chunk(job.chunk[:, age : age + horizon], job.context)
+        step = min(self._step, self._chunk.shape[1] - 1)  # a chunk kept past its end holds its last step
+        self.last_step = step
+        self._step += 1
+        self._t += 1
+        if mode == "open_loop":
+            return self._chunk[:, step]
+        if mode == "object_anchored":
+            return self._anchored(self._chunk[:, step], batch)
+        feature, _ = self.extractor(self._bank)
+        if cfg.correction == "residual":
+            return self.residual_step(feature, step, batch)
+        return self.decode_step(feature, step)
+
+    def _planning_lead(self) -> int:
+        """Ticks before the chunk's end at which the next one is planned (``DCDPConfig.planning_clock``)."""
+        cfg = self.config
+        if cfg.planning_clock == "steps":
+            return cfg.inference_delay
+        if not self._plan_s or not self._tick_s:
+            return 1
+        return min(cfg.n_action_steps, math.ceil(self._plan_s / self._tick_s) + 1)
+
+    def _use_chunk(self, chunk: Tensor, context: tuple[Tensor | None, Tensor | None]) -> None:
+        """Start executing ``chunk`` (B, <= H, A; a short one is padded with its last action) planned from
+        the observation whose change representation and anchor keypoints ``context`` holds."""
+        cfg = self.config
+        horizon = cfg.n_action_steps
+        if chunk.shape[1] < horizon:
+            chunk = torch.cat([chunk, chunk[:, -1:].expand(-1, horizon - chunk.shape[1], -1)], dim=1)
+        self._at_plan, self._anchor_plan = context
+        self._chunk, self._step = chunk, 0
+        self._terms = None
+        if cfg.execution != "dcdp":
+            return
+        self._z = self.encode_chunk(chunk)
+        if cfg.correction != "residual":
+            self._h = self.decoder.initial_state(self._z)
+        elif self.fast_inference and not cfg.anchor_input:
+            unit = to_unit_range(chunk, self.action_low, self.action_high)
+            self._terms, self._w_step = self.residual.chunk_terms(self._z, unit, self._at_plan)
+
+    def close(self) -> None:
+        """Stop the asynchronous planner's worker thread (``planning='async'``); the policy stays usable."""
+        if self._planner is not None:
+            self._planner.close()
+            self._planner = None
+
     # ------------------------------------------------------------ compiled per-step path (step_kernel.py)
     @property
     def _step_graph(self):
@@ -775,7 +870,7 @@ class DCDPPolicy(PreTrainedPolicy):
 
     def _kernel_applies(self) -> bool:
         """Whether the compiled per-step kernel covers this corrector as it runs now: a residual head without
-        anchor input or inference delay, vector frames, float32 on CPU, eval mode, ``fast_inference``."""
+        anchor input, inference delay or asynchronous planning, vector frames, float32 on CPU, eval mode, ``fast_inference``."""
         cfg = self.config
         weight = self.residual.net[0].weight if cfg.correction == "residual" else None
         if not (
@@ -783,7 +878,7 @@ class DCDPPolicy(PreTrainedPolicy):
             and self.fast_inference
             and cfg.compiled_kernel != "off"
             and not self.training
-            and not (cfg.anchor_input or cfg.inference_delay)
+            and not (cfg.anchor_input or cfg.inference_delay or cfg.planning == "async")
             and weight.device.type == "cpu"
             and weight.dtype == torch.float32
         ):
@@ -914,6 +1009,11 @@ class DCDPPolicy(PreTrainedPolicy):
             for k, v in saved.items():
                 setattr(self, k, v)
             self.source.restore(queues)
+
+
+def _smoothed(previous: float | None, value: float, weight: float = 0.3) -> float:
+    """Exponential moving average (the first value as is)."""
+    return value if previous is None else (1 - weight) * previous + weight * value
 
 
 __all__ = ["DCDPPolicy", "BaseMismatchError"]
