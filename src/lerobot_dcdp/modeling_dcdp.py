@@ -870,7 +870,8 @@ class DCDPPolicy(PreTrainedPolicy):
 
     def _kernel_applies(self) -> bool:
         """Whether the compiled per-step kernel covers this corrector as it runs now: a residual head without
-        anchor input, inference delay or asynchronous planning, vector frames, float32 on CPU, eval mode, ``fast_inference``."""
+        anchor input, inference delay or asynchronous planning, vector frames, float32 on CPU, eval mode,
+        ``fast_inference``."""
         cfg = self.config
         weight = self.residual.net[0].weight if cfg.correction == "residual" else None
         if not (
