@@ -467,3 +467,25 @@ def test_recorded_rounds_merge_with_lerobots_own_merge(diffusion_base, correctio
     policy = _residual_policy(diffusion_base, tmp_path / "merged")
     loss, info = policy.forward(next(training_batches(policy, tmp_path / "merged", batch_size=8)))
     assert torch.isfinite(loss) and info["synthesised"] == 0.0
+
+
+def test_the_kernel_follows_writes_through_param_data(diffusion_base, corrections_root) -> None:
+    """Writes through ``param.data`` bump no tensor version: the kernel's packed weights still follow them."""
+    policy = _residual_policy(diffusion_base, corrections_root).eval()
+    obs = _normalised(policy, 2, 12)
+    policy.residual.net[-1].bias.data.add_(0.1)  # a moving corrector, written through .data
+    runs = {}
+    for fast in (True, False):
+        policy.fast_inference = fast
+        torch.manual_seed(3)
+        policy.reset()
+        runs[fast] = torch.stack([policy.select_action(dict(o)) for o in obs])
+        assert (policy._step_graph is not None) == fast
+    assert (runs[True] - runs[False]).abs().max() <= 1e-6
+    policy.residual.net[-1].bias.data.sub_(0.2)
+    for fast in (True, False):
+        policy.fast_inference = fast
+        torch.manual_seed(3)
+        policy.reset()
+        runs[fast] = torch.stack([policy.select_action(dict(o)) for o in obs])
+    assert (runs[True] - runs[False]).abs().max() <= 1e-6
