@@ -489,3 +489,16 @@ def test_the_kernel_follows_writes_through_param_data(diffusion_base, correction
         policy.reset()
         runs[fast] = torch.stack([policy.select_action(dict(o)) for o in obs])
     assert (runs[True] - runs[False]).abs().max() <= 1e-6
+
+
+def test_recording_leaves_the_callers_random_state_alone(diffusion_base) -> None:
+    from lerobot_dcdp.pusht.corrections import DriftSpec, load_policy, rollout_corrections
+
+    policy, pre, post = load_policy(None, str(diffusion_base), "open_loop", "observation.environment_state")
+    spec = DriftSpec("constant", 1.0, 0.0, (0.0,), 50)
+    torch.manual_seed(123)
+    before = torch.random.get_rng_state()
+    first = rollout_corrections(policy, pre, post, [4], [spec], 6, 0)[0]
+    assert torch.equal(torch.random.get_rng_state(), before)
+    again = rollout_corrections(policy, pre, post, [4], [spec], 6, 0)[0]
+    assert np.array_equal(first["plan"], again["plan"])  # seeded inside, from the episode seed

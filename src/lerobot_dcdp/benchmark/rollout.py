@@ -66,6 +66,7 @@ def _stack_obs(obs_list: list[dict]) -> dict[str, np.ndarray]:
 
 
 @torch.no_grad()
+@torch.random.fork_rng(devices=[])  # the seeding below leaves the caller's global RNG as it was
 def rollout(
     policy,
     preprocessor,

@@ -248,6 +248,7 @@ class PolicyTeacher:
 
 
 @torch.no_grad()
+@torch.random.fork_rng(devices=[])  # the seeding below leaves the caller's global RNG as it was
 def rollout_corrections(
     policy,
     pre,

@@ -61,6 +61,8 @@ class PushTSim(Robot):
     def __init__(self, config: PushTSimConfig) -> None:
         super().__init__(config)
         self.config = config
+        #: the wall clock of ``realtime`` mode (seconds); a test may substitute a controlled one
+        self.clock = time.perf_counter
         self._env: Any = None
         self._obs: dict[str, np.ndarray] | None = None
         self._reset_stats()
@@ -174,7 +176,7 @@ class PushTSim(Robot):
         if not self.config.realtime:
             self._step(target)
         else:
-            now = time.perf_counter()
+            now = self.clock()
             if self._anchor is None:
                 self._anchor = now
             # steps due since the first action: one at the first action, then one per elapsed 0.1 s,
