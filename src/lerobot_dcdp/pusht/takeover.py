@@ -6,8 +6,8 @@ there (``scripts/diagnostics/act_stall_neighbours.py`` in git, commit 7706bc7). 
 states the policy reaches* adds demonstrations of how to recover from them: the policy drives an episode for a
 seeded number of steps, then the scripted expert takes over and is recorded to success. This is one round of
 DAgger (Ross et al., 2011) with the expert's own continuation as the label, so the result is an ordinary
-LeRobotDataset of consecutive frames that stock ``lerobot-train`` reads (merge it with the demonstrations using
-``lerobot-edit-dataset --operation.type merge``).
+LeRobotDataset of consecutive frames that stock ``lerobot-train`` reads (merge it with the demonstrations
+using ``lerobot-edit-dataset --operation.type merge``).
 """
 
 from __future__ import annotations
