@@ -12,12 +12,14 @@ import json
 import time
 from pathlib import Path
 
+from lerobot_dcdp.benchmark import shipped_model
+
 
 def main(argv: list[str] | None = None) -> None:
     from lerobot_dcdp.benchmark import run
 
     p = argparse.ArgumentParser(prog="dcdp-demo", description=__doc__.splitlines()[0])
-    p.add_argument("--corrector", default="models/pusht-dcdp-state")
+    p.add_argument("--corrector", default=shipped_model("pusht-dcdp-state"))
     p.add_argument("--condition", default="constant_2.0")
     p.add_argument("--episodes", type=int, default=10)
     p.add_argument("--out", default="outputs/demo")

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lerobot_dcdp.benchmark import shipped_model
 from lerobot_dcdp.correction import to_unit_range
 
 MODES = ("open_loop", "dcdp", "object_anchored", "closed_loop")
@@ -125,7 +126,7 @@ def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="dcdp-latency", description=__doc__.splitlines()[0])
-    p.add_argument("--corrector", default="models/pusht-dcdp-state")
+    p.add_argument("--corrector", default=shipped_model("pusht-dcdp-state"))
     p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
     p.add_argument("--episodes", type=int, default=2, help="episodes per mode and batch size")
     p.add_argument("--steps", type=int, default=300, help="control steps per episode")

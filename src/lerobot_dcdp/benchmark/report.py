@@ -162,7 +162,12 @@ def table_delay(results: dict, label: str) -> str:
 def plot_delay(results: dict, path: Path) -> bool:
     """Score (± s.e.) vs inference delay per method, one panel per condition and model; False when no
     delayed cell exists."""
-    import matplotlib
+    try:
+        import matplotlib
+    except ImportError as err:  # an optional dependency
+        raise ImportError(
+            "the benchmark plots need matplotlib: pip install 'lerobot_policy_dcdp[benchmark]'"
+        ) from err
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -199,7 +204,12 @@ def plot_delay(results: dict, path: Path) -> bool:
 
 def plot(results: dict, path: Path) -> None:
     """Score (± standard error) vs drift magnitude, per method, for constant and random drift."""
-    import matplotlib
+    try:
+        import matplotlib
+    except ImportError as err:  # an optional dependency
+        raise ImportError(
+            "the benchmark plots need matplotlib: pip install 'lerobot_policy_dcdp[benchmark]'"
+        ) from err
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -24,15 +24,16 @@ from pathlib import Path
 
 import numpy as np
 
+from lerobot_dcdp.benchmark import shipped_model
 from lerobot_dcdp.benchmark.report import cell_key
 
 METHODS = ["open_loop", "closed_loop", "temporal_ensemble", "object_anchored", "dcdp"]
 DEFAULT_MODELS = {
-    "diffusion": "models/pusht-dcdp-state",
-    "diffusion_paper_recipe": "models/pusht-dcdp-state-paper-recipe",
-    "act": "models/pusht-dcdp-act-state",
-    "diffusion_demos": "models/pusht-dcdp-state-demos",
-    "act_demos": "models/pusht-dcdp-act-state-demos",
+    "diffusion": shipped_model("pusht-dcdp-state"),
+    "diffusion_paper_recipe": shipped_model("pusht-dcdp-state-paper-recipe"),
+    "act": shipped_model("pusht-dcdp-act-state"),
+    "diffusion_demos": shipped_model("pusht-dcdp-state-demos"),
+    "act_demos": shipped_model("pusht-dcdp-act-state-demos"),
 }
 #: these correctors share their base with ``diffusion`` / ``act``: only their own DCDP row is run by default
 DEFAULT_METHODS = {"diffusion_paper_recipe": ["dcdp"], "diffusion_demos": ["dcdp"], "act_demos": ["dcdp"]}

@@ -27,7 +27,10 @@ import tempfile
 import time
 from pathlib import Path
 
-import h5py
+try:
+    import h5py
+except ImportError as err:  # an optional dependency
+    raise ImportError("the FastUMI tools need h5py: pip install 'lerobot_policy_dcdp[fastumi]'") from err
 import numpy as np
 
 

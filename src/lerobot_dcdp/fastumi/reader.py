@@ -38,7 +38,11 @@ from pathlib import Path
 from typing import Literal
 
 import cv2
-import h5py
+
+try:
+    import h5py
+except ImportError as err:  # an optional dependency
+    raise ImportError("the FastUMI tools need h5py: pip install 'lerobot_policy_dcdp[fastumi]'") from err
 import numpy as np
 
 logger = logging.getLogger(__name__)
