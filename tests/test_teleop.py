@@ -229,3 +229,61 @@ def test_recorder_flag_errors_name_the_fix(diffusion_base, tmp_path) -> None:
     with pytest.raises(ValueError, match="unrecognized arguments: --tele.type=x"):
         parse_teleop_args(["--tele.type=x"])
     assert parse_teleop_args(["--teleop.type=pusht_expert", "--teleop.seed=5"]).seed == 5
+
+
+@pytest.mark.slow
+def test_any_lerobot_env_and_a_teacher_policy_through_the_clis(diffusion_base, act_base, tmp_path) -> None:
+    """--env.type picks any registered LeRobot env (here LeRobot's own ``pusht``, no drift) and
+    --teacher=policy labels with another policy; the recording trains with lerobot-train and runs with lerobot-eval."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    data = tmp_path / "stock_env"
+    record = [
+        str(BIN / "dcdp-record-corrections"),
+        f"--root={data}",
+        "--repo-id=local/stock",
+        f"--base={diffusion_base}",
+        "--teacher=policy",
+        f"--teacher-policy={act_base}",
+        "--episodes=2",
+        "--batch-size=2",
+        "--max-steps=10",
+        "--env.type=pusht",
+    ]
+    bad = subprocess.run(record, capture_output=True, text=True, timeout=600, env=ENV, cwd=tmp_path)
+    assert bad.returncode != 0 and "--env.obs_type=environment_state_agent_pos" in bad.stderr
+    assert not data.exists()
+    run([*record, "--env.obs_type=environment_state_agent_pos"], cwd=tmp_path)
+    ds = LeRobotDataset("local/stock", root=data)
+    assert ds.meta.total_episodes == 2 and ds.meta.fps == 10
+    assert ds.meta.features["observation.environment_state"]["names"][0] == "kp0_x"
+    out = tmp_path / "train"
+    run(
+        [
+            str(BIN / "lerobot-train"),
+            "--policy.type=dcdp",
+            f"--policy.base_policy_path={diffusion_base}",
+            "--policy.feature_dim=32",
+            "--policy.n_heads=4",
+            f"--output_dir={out}",
+            *tiny_train_flags("local/stock", data),
+        ],
+        cwd=tmp_path,
+    )
+    evaluation = tmp_path / "eval"
+    run(
+        [
+            str(BIN / "lerobot-eval"),
+            f"--policy.path={out / 'checkpoints' / 'last' / 'pretrained_model'}",
+            "--env.type=pusht",
+            "--env.obs_type=environment_state_agent_pos",
+            "--env.episode_length=10",
+            "--eval.n_episodes=1",
+            "--eval.batch_size=1",
+            "--eval.use_async_envs=false",
+            "--policy.device=cpu",
+            f"--output_dir={evaluation}",
+        ],
+        cwd=tmp_path,
+    )
+    assert json.loads((evaluation / "eval_info.json").read_text())["overall"]["n_episodes"] == 1

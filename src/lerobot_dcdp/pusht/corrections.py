@@ -99,16 +99,28 @@ def drift_for_seed(seed: int, max_magnitude: float, static_fraction: float) -> D
     return DriftSpec(kind, mag, direction, dirs, every)
 
 
-def features(plan_length: int, action_dim: int = 2) -> dict:
-    """LeRobotDataset feature spec of recorded corrections."""
-    xy = ["x", "y"]
-    return {
-        "observation.state": {"dtype": "float32", "shape": (2,), "names": xy},
-        "observation.environment_state": {
+#: Names of PushT's vector observations (the ``pusht`` datasets'), kept when a recording holds them.
+PUSHT_NAMES = {
+    "observation.state": ["x", "y"],
+    "observation.environment_state": [f"kp{i // 2}_{'xy'[i % 2]}" for i in range(16)],
+}
+
+
+def features(plan_length: int, action_dim: int = 2, observations: dict | None = None) -> dict:
+    """LeRobotDataset feature spec of recorded corrections (``observations``: key -> shape of the stored
+    observations; default PushT's agent position and block keypoints)."""
+    observations = observations or {"observation.state": (2,), "observation.environment_state": (16,)}
+    spec = {}
+    for key, shape in observations.items():
+        names = PUSHT_NAMES.get(key)
+        spec[key] = {
             "dtype": "float32",
-            "shape": (16,),
-            "names": [f"kp{i // 2}_{'xy'[i % 2]}" for i in range(16)],
-        },
+            "shape": tuple(shape),
+            "names": names if names is not None and (len(names),) == tuple(shape) else None,
+        }
+    xy = ["x", "y"] if action_dim == 2 else None
+    return {
+        **spec,
         # flat (L * A,): LeRobot's merge_datasets cannot copy a 2-D column (the policy reshapes it)
         "observation.dcdp_plan": {"dtype": "float32", "shape": (plan_length * action_dim,), "names": None},
         "observation.dcdp_plan_step": {"dtype": "float32", "shape": (1,), "names": None},
@@ -261,34 +273,43 @@ def rollout_corrections(
     teacher: str = "object_anchored",
     online_teacher=None,
     teacher_drives: bool = False,
+    env_config=None,
 ) -> list[dict]:
     """Run one batch of episodes (lock-step) and return each episode's frames with teacher labels
     (``weights``: per episode, the share of the teacher's correction in the label; default 1;
     ``teacher``: ``drift_offset`` labels with the applied drift, ``teleop`` / ``policy`` with
     ``online_teacher(obs, batch, active)``'s action for each step (executed instead of the policy's when
-    ``teacher_drives``), any other with the anchoring)."""
+    ``teacher_drives``), any other with the anchoring of ``policy.config.anchor_feature``; ``env_config``: a
+    LeRobot ``EnvConfig``, default ``pusht_perturbed`` with keypoint observations: :func:`episode_env`)."""
     from lerobot.envs.utils import preprocess_observation
 
-    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
-
-    envs = [
-        make_perturbed_env(
-            obs_type="environment_state_agent_pos", max_episode_steps=max_steps, **sp.env_kwargs()
-        )
-        for sp in specs
-    ]
+    envs = [episode_env(env_config, sp, max_steps) for sp in specs]
     obs = [env.reset(seed=s)[0] for env, s in zip(envs, seeds, strict=True)]
     n = len(seeds)
-    keys = ("state", "kp", "plan", "step", "exec", "reward", "success", "offset", "teach")
+    anchor = policy.config.anchor_feature
+    obs_keys = recorded_keys(policy)
+    keys = ("obs", "anchor", "plan", "step", "exec", "reward", "success", "offset", "teach")
     cols = [{k: [] for k in keys} for _ in seeds]
     active = np.ones(n, dtype=bool)
     torch.manual_seed(seeds[0])  # the base's sampling noise: the same command records the same data
     policy.reset()
     if online_teacher is not None:
         online_teacher.reset(n)
+
+    def anchor_of(o: dict) -> np.ndarray | None:
+        if not anchor:
+            return None
+        return preprocess_observation({k: v[None] for k, v in o.items()})[anchor][0].numpy()
+
     for _ in range(max_steps):
         stacked = {k: np.stack([o[k] for o in obs]) for k in obs[0]}
         raw = preprocess_observation(stacked)
+        missing = [k for k in obs_keys if k not in raw]
+        if missing:
+            raise ValueError(
+                f"the env's observations give {sorted(raw)}, not {missing} that the policy reads: pick the "
+                "env's observation type that holds them (e.g. --env.obs_type=environment_state_agent_pos)"
+            )
         batch = pre(dict(raw))
         action = post(policy.select_action(batch)).cpu().numpy()
         taught = None if online_teacher is None else online_teacher(obs, raw, active)
@@ -298,8 +319,9 @@ def rollout_corrections(
         step = policy.last_step
         for i in np.flatnonzero(active):
             c = cols[i]
-            c["state"].append(obs[i]["agent_pos"].astype(np.float32))
-            c["kp"].append(obs[i]["environment_state"].astype(np.float32))
+            c["obs"].append({k: raw[k][i].numpy().astype(np.float32) for k in obs_keys})
+            if anchor:
+                c["anchor"].append(raw[anchor][i].numpy().astype(np.float32))
             c["plan"].append(plan[i].astype(np.float32))
             c["step"].append(step)
             c["exec"].append(action[i].astype(np.float32))
@@ -308,23 +330,22 @@ def rollout_corrections(
             o, r, term, trunc, info = envs[i].step(action[i])
             obs[i] = o
             c["reward"].append(float(r))
-            c["offset"].append(np.asarray(info["perturbation_offset"], dtype=np.float64))
+            c["offset"].append(np.asarray(info.get("perturbation_offset", (0.0, 0.0)), dtype=np.float64))
             c["success"].append(bool(info.get("is_success", False)))
             if term or trunc or c["success"][-1]:
                 active[i] = False
-                c["kp"].append(
-                    o["environment_state"].astype(np.float32)
-                )  # the observation after the last step
+                if anchor:  # the observation after the last step
+                    c["anchor"].append(anchor_of(o).astype(np.float32))
         if not active.any():
             break
     for i in np.flatnonzero(active):
-        cols[i]["kp"].append(obs[i]["environment_state"].astype(np.float32))
+        if anchor:
+            cols[i]["anchor"].append(anchor_of(obs[i]).astype(np.float32))
     for env in envs:
         env.close()
     episodes = []
     for i, c in enumerate(cols):
         plans, steps = np.stack(c["plan"]), np.asarray(c["step"])
-        kps = np.stack(c["kp"])
         plan_s = plans[np.arange(len(steps)), steps]
         w = 1.0 if weights is None else float(weights[i])
         labels = plan_s.copy()
@@ -335,12 +356,12 @@ def rollout_corrections(
             labels = drift_offset_labels(plans, steps, np.stack(c["offset"]), lookahead)
             labels = plan_s + w * (labels - plan_s)
         elif w > 0:
+            kps = np.stack(c["anchor"])
             anchored = anchored_labels(plans, steps, kps.reshape(len(kps), -1, 2), lookahead)
             labels = plan_s + w * (anchored - plan_s)
         episodes.append(
             {
-                "state": np.stack(c["state"]),
-                "kp": kps[:-1],
+                "obs": {k: np.stack([f[k] for f in c["obs"]]) for k in obs_keys},
                 "plan": plans,
                 "step": steps,
                 "label": labels,
@@ -350,6 +371,41 @@ def rollout_corrections(
             }
         )
     return episodes
+
+
+def recorded_keys(policy) -> list[str]:
+    """The observation keys a recording stores: every vector input the policy and its base read."""
+    from lerobot.configs.types import FeatureType
+
+    features = {**(policy.base.config.input_features or {}), **(policy.config.input_features or {})}
+    keys = sorted(set(policy._needed_keys) | ({policy.config.anchor_feature} - {None}))
+    images = [k for k in keys if k in features and features[k].type is FeatureType.VISUAL]
+    if images:
+        raise ValueError(
+            f"dcdp-record-corrections stores vector observations only; the policy reads the images {images}"
+        )
+    return keys
+
+
+def episode_env(env_config, spec: DriftSpec, max_steps: int):
+    """One episode's gym env: ``pusht_perturbed`` (the default) with the episode's drawn drift, or any other
+    registered LeRobot env type as its ``--env.*`` flags configure it (its own dynamics; no drift drawn)."""
+    import gymnasium as gym
+
+    from lerobot_dcdp.envs.pusht_perturbed import PushTPerturbedEnvConfig, make_perturbed_env
+
+    if env_config is None:
+        return make_perturbed_env(
+            obs_type="environment_state_agent_pos", max_episode_steps=max_steps, **spec.env_kwargs()
+        )
+    if isinstance(env_config, PushTPerturbedEnvConfig):
+        own = {k: v for k, v in env_config.gym_kwargs.items() if k not in spec.env_kwargs()}
+        return make_perturbed_env(max_episode_steps=max_steps, **own, **spec.env_kwargs())
+    import importlib
+
+    importlib.import_module(env_config.package_name)
+    kwargs = {**env_config.gym_kwargs, "max_episode_steps": max_steps}
+    return gym.make(f"{env_config.package_name}/{env_config.task}", disable_env_checker=True, **kwargs)
 
 
 def _weight(spec: DriftSpec, gated: bool, ramp: float) -> float:
@@ -362,13 +418,12 @@ def _weight(spec: DriftSpec, gated: bool, ramp: float) -> float:
     return 1.0 if ramp <= 0 else min(1.0, spec.magnitude / ramp)
 
 
-def _write_episode(ds, ep: dict) -> None:
+def _write_episode(ds, ep: dict, task: str) -> None:
     n = len(ep["step"])
     for t in range(n):
         ds.add_frame(
             {
-                "observation.state": ep["state"][t],
-                "observation.environment_state": ep["kp"][t],
+                **{k: v[t] for k, v in ep["obs"].items()},
                 "observation.dcdp_plan": ep["plan"][t].reshape(-1),
                 "observation.dcdp_plan_step": np.array([ep["step"][t]], dtype=np.float32),
                 "action": ep["label"][t],
@@ -376,7 +431,7 @@ def _write_episode(ds, ep: dict) -> None:
                 "next.reward": ep["reward"][t : t + 1],
                 "next.success": ep["success"][t : t + 1],
                 "next.done": np.array([t == n - 1]),
-                "task": TASK,
+                "task": task,
             }
         )
     ds.save_episode()
@@ -424,11 +479,16 @@ def record_corrections(
     ramp: float = 0.0,
     teleop_config=None,
     teacher_policy: str | Path | None = None,
+    env_config=None,
+    anchor_feature: str = "observation.environment_state",
 ) -> dict:
     """Record ``episodes`` episodes of stale chunks and teacher corrections to a LeRobotDataset at ``root``.
 
     ``teleop_config`` (a LeRobot ``TeleoperatorConfig``) is the ``teleop`` teacher, ``teacher_policy`` (a
-    ``pretrained_model`` folder) the ``policy`` teacher.
+    ``pretrained_model`` folder) the ``policy`` teacher. ``env_config`` (a LeRobot ``EnvConfig``; default
+    ``pusht_perturbed`` with keypoint observations) is the env: ``pusht_perturbed`` episodes get the drift
+    drawn per episode, any other env type runs as configured. ``anchor_feature`` names the object's xy
+    keypoints for the anchoring teachers.
 
     Raises:
         ValueError: bad arguments, seeds reaching the evaluation seeds, or an existing ``root`` that is not an
@@ -456,6 +516,14 @@ def record_corrections(
         raise ValueError(f"--teleop.* is given but teacher={teacher!r}: pass --teacher=teleop")
     if teacher != "policy" and teacher_policy is not None:
         raise ValueError(f"--teacher-policy is given but teacher={teacher!r}: pass --teacher=policy")
+    from lerobot_dcdp.envs.pusht_perturbed import PushTPerturbedEnvConfig
+
+    drifting = env_config is None or isinstance(env_config, PushTPerturbedEnvConfig)
+    if teacher == "drift_offset" and not drifting:
+        raise ValueError(
+            f"teacher='drift_offset' reads the drift pusht_perturbed applies; env type {env_config.type!r} "
+            "has none (use object_anchored, policy or teleop)"
+        )
     if execution == "teacher" and teacher not in ONLINE_TEACHERS:
         raise ValueError(
             f"execution='teacher' lets the teacher drive, which needs teacher in {ONLINE_TEACHERS}; "
@@ -481,10 +549,31 @@ def record_corrections(
         if not force:
             raise ValueError(f"root={root} already exists; pass --force to overwrite it")
     drive = "open_loop" if execution == "teacher" else execution
-    policy, pre, post = load_policy(policy_path, base_path, drive, "observation.environment_state")
+    policy, pre, post = load_policy(policy_path, base_path, drive, anchor_feature)
     horizon = policy.config.n_action_steps
     seeds = list(range(seed, seed + episodes))
-    specs = [drift_for_seed(s, max_magnitude, static_fraction) for s in seeds]
+    if drifting:
+        specs = [drift_for_seed(s, max_magnitude, static_fraction) for s in seeds]
+    else:
+        specs = [DriftSpec("none", 0.0, 0.0, (0.0,), 50) for _ in seeds]
+    keys = recorded_keys(policy)
+    probe = episode_env(env_config, specs[0], max_steps)
+    try:
+        from lerobot.envs.utils import preprocess_observation
+
+        first = preprocess_observation({k: v[None] for k, v in probe.reset(seed=seeds[0])[0].items()})
+    finally:
+        probe.close()
+    missing = [k for k in keys if k not in first]
+    if missing:
+        raise ValueError(
+            f"the env's observations give {sorted(first)}, not {missing} that the policy reads: pick the "
+            "env's observation type that holds them (pusht: --env.obs_type=environment_state_agent_pos)"
+        )
+    shapes = {k: tuple(first[k].shape[1:]) for k in keys}
+    action_dim = int(policy.config.action_feature.shape[0])
+    fps = FPS if env_config is None else env_config.fps
+    task = TASK if drifting or env_config.type == "pusht" else env_config.task
     frames = 0
     gap = []
     online = None
@@ -496,8 +585,8 @@ def record_corrections(
         with staged_dir(root) as tmp_root:
             ds = LeRobotDataset.create(
                 repo_id=repo_id,
-                fps=FPS,
-                features=features(horizon),
+                fps=fps,
+                features=features(horizon, action_dim, shapes),
                 root=tmp_root,
                 robot_type="pusht",
                 use_videos=False,
@@ -523,8 +612,9 @@ def record_corrections(
                         teacher,
                         online,
                         teacher_drives=execution == "teacher",
+                        env_config=env_config,
                     ):
-                        _write_episode(ds, ep)
+                        _write_episode(ds, ep, task)
                         frames += len(ep["step"])
                         gap.append(
                             np.linalg.norm(
@@ -551,29 +641,42 @@ def record_corrections(
     }
 
 
-def parse_teleop_args(args: list[str]):
-    """LeRobot's ``--teleop.type=<type> --teleop.<field>=<value>`` flags as a ``TeleoperatorConfig`` (``None``
-    when there are none); any other leftover flag is an error naming it."""
+def _parse_choice(args: list[str], name: str, base):
+    """``--<name>.type=<type> --<name>.<field>=<value>`` flags as a ``base`` (a draccus ChoiceRegistry)
+    config; ``None`` without flags."""
     from dataclasses import make_dataclass
 
     import draccus
+
+    if not args:
+        return None
+    if not any(x.startswith(f"--{name}.type=") for x in args):
+        known = ", ".join(sorted(base.get_known_choices()))
+        raise ValueError(f"--{name}.* flags need --{name}.type=<one of: {known}>")
+    args_class = make_dataclass(f"{name.title()}Args", [(name, base)])
+    try:
+        return getattr(draccus.parse(config_class=args_class, args=args), name)
+    except (draccus.utils.ParsingError, SystemExit, ValueError) as err:
+        cause = err.__cause__ or err
+        raise ValueError(f"bad --{name}.* flags ({' '.join(args)}): {cause}") from err
+
+
+def parse_teleop_args(args: list[str]):
+    """LeRobot's ``--teleop.type=<type> --teleop.<field>=<value>`` flags as a ``TeleoperatorConfig`` (``None``
+    when there are none); any other leftover flag is an error naming it."""
     from lerobot.teleoperators.config import TeleoperatorConfig
 
     unknown = [x for x in args if not x.startswith("--teleop.")]
     if unknown:
         raise ValueError(f"unrecognized arguments: {' '.join(unknown)}")
-    if not args:
-        return None
-    if not any(x.startswith("--teleop.type=") for x in args):
-        known = ", ".join(sorted(TeleoperatorConfig.get_known_choices()))
-        raise ValueError(f"--teleop.* flags need --teleop.type=<one of: {known}>")
+    return _parse_choice(args, "teleop", TeleoperatorConfig)
 
-    args_class = make_dataclass("TeleopArgs", [("teleop", TeleoperatorConfig)])
-    try:
-        return draccus.parse(config_class=args_class, args=args).teleop
-    except (draccus.utils.ParsingError, SystemExit, ValueError) as err:
-        cause = err.__cause__ or err
-        raise ValueError(f"bad --teleop.* flags ({' '.join(args)}): {cause}") from err
+
+def parse_env_args(args: list[str]):
+    """LeRobot's ``--env.type=<type> --env.<field>=<value>`` flags as an ``EnvConfig`` (``None``: none)."""
+    from lerobot.envs.configs import EnvConfig
+
+    return _parse_choice([x for x in args if x.startswith("--env.")], "env", EnvConfig)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -606,14 +709,21 @@ def main(argv: list[str] | None = None) -> None:
         default=None,
         help="teacher=policy: a pretrained_model folder of any LeRobot policy",
     )
+    p.add_argument(
+        "--anchor-feature",
+        default="observation.environment_state",
+        help="observation key of the object's xy keypoints (the anchoring teachers)",
+    )
     p.epilog = (
-        "teacher=teleop takes LeRobot's teleoperator flags: --teleop.type=<type> (e.g. pusht_expert) and "
-        "--teleop.<field>=<value>"
+        "LeRobot's env flags pick the env: --env.type=<type> --env.<field>=<value> (default pusht_perturbed "
+        "with keypoint observations and a drift drawn per episode). teacher=teleop takes LeRobot's "
+        "teleoperator flags: --teleop.type=<type> (e.g. pusht_expert) and --teleop.<field>=<value>"
     )
     a, rest = p.parse_known_args(argv)
     torch.set_num_threads(1)
     try:
-        teleop = parse_teleop_args(rest)
+        env_config = parse_env_args(rest)
+        teleop = parse_teleop_args([x for x in rest if not x.startswith("--env.")])
     except ValueError as e:
         p.error(str(e))
     try:
@@ -635,6 +745,8 @@ def main(argv: list[str] | None = None) -> None:
             ramp=a.ramp,
             teleop_config=teleop,
             teacher_policy=a.teacher_policy,
+            env_config=env_config,
+            anchor_feature=a.anchor_feature,
         )
     except ValueError as e:
         sys.exit(f"dcdp-record-corrections: error: {e}")
