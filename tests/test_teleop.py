@@ -234,7 +234,8 @@ def test_recorder_flag_errors_name_the_fix(diffusion_base, tmp_path) -> None:
 @pytest.mark.slow
 def test_any_lerobot_env_and_a_teacher_policy_through_the_clis(diffusion_base, act_base, tmp_path) -> None:
     """--env.type picks any registered LeRobot env (here LeRobot's own ``pusht``, no drift) and
-    --teacher=policy labels with another policy; the recording trains with lerobot-train and runs with lerobot-eval."""
+    --teacher=policy labels with another policy; the recording trains with lerobot-train and runs with
+    lerobot-eval."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     data = tmp_path / "stock_env"
