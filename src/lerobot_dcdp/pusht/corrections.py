@@ -1,10 +1,12 @@
 """``dcdp-record-corrections``: stale chunks and a teacher's corrections of them, as a LeRobotDataset v3.
 
 The training signal of the ``residual`` corrector (docs/METHOD.md): the frozen base runs as it does at
-deployment -- one chunk every H steps -- on PushT with the T block drifting, and every executed step is
-labelled with what a teacher would do with the stale chunk. Per frame the dataset holds
+deployment -- one chunk every H steps -- on PushT with the T block drifting (``pusht_perturbed``, the default;
+``--env.type=<any registered LeRobot env>`` with its ``--env.*`` flags runs that env as configured), and every
+executed step is labelled with what a teacher would do with the stale chunk. Per frame the dataset holds
 
-- ``observation.state``, ``observation.environment_state``: the observation of that step (raw);
+- every vector observation the policy and its base read (raw; PushT: ``observation.state``,
+  ``observation.environment_state``);
 - ``observation.dcdp_plan`` (L * A,) and ``observation.dcdp_plan_step`` (1,): the chunk as the base planned
   it at the chunk start (flattened, so LeRobot's ``merge_datasets`` can aggregate DAgger rounds), and the
   step s of this frame in it;
