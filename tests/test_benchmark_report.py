@@ -116,3 +116,18 @@ def test_merge_keeps_cells_another_run_wrote_meanwhile() -> None:
     assert merged["cells"] == {"a": {"score": 10}, "b": {"score": 20}, "c": {"score": 3}}
     assert merged["latency"] == {"x": 1} and merged["models"] == {"m": {"sha": "new"}}
     assert merge_results({}, ours, {}) == {k: ours[k] for k in ("cells", "latency", "models")}
+
+
+def test_an_ablation_run_never_overwrites_the_main_plots() -> None:
+    from pathlib import Path
+
+    from lerobot_dcdp.benchmark.report import plot_paths
+
+    assert [p.name for p in plot_paths(Path("results/benchmark.json"))] == [
+        "score_vs_drift.png",
+        "score_vs_delay.png",
+    ]
+    assert [p.name for p in plot_paths(Path("results/ablation.json"))] == [
+        "ablation_score_vs_drift.png",
+        "ablation_score_vs_delay.png",
+    ]

@@ -257,10 +257,16 @@ def protocol(results: dict) -> str:
     )
 
 
+def plot_paths(json_path: Path) -> tuple[Path, Path]:
+    """The score-vs-drift and score-vs-delay plots beside a results file: ``score_vs_*.png`` for
+    ``benchmark.json``, ``<stem>_score_vs_*.png`` for any other (an ablation keeps the main plots)."""
+    prefix = "" if json_path.stem == "benchmark" else f"{json_path.stem}_"
+    return json_path.parent / f"{prefix}score_vs_drift.png", json_path.parent / f"{prefix}score_vs_delay.png"
+
+
 def write_report(results: dict, report: Path, json_path: Path) -> None:
-    plot_path = json_path.parent / "score_vs_drift.png"
+    plot_path, delay_path = plot_paths(json_path)
     plot(results, plot_path)
-    delay_path = json_path.parent / "score_vs_delay.png"
     has_delay = plot_delay(results, delay_path)
     m = results.get("machine", {})
     parts = [
