@@ -34,9 +34,15 @@ DEFAULT_MODELS = {
     "act": shipped_model("pusht-dcdp-act-state"),
     "diffusion_demos": shipped_model("pusht-dcdp-state-demos"),
     "act_demos": shipped_model("pusht-dcdp-act-state-demos"),
+    "diffusion_teleop": shipped_model("pusht-dcdp-state-teleop"),
 }
 #: these correctors share their base with ``diffusion`` / ``act``: only their own DCDP row is run by default
-DEFAULT_METHODS = {"diffusion_paper_recipe": ["dcdp"], "diffusion_demos": ["dcdp"], "act_demos": ["dcdp"]}
+DEFAULT_METHODS = {
+    "diffusion_paper_recipe": ["dcdp"],
+    "diffusion_demos": ["dcdp"],
+    "act_demos": ["dcdp"],
+    "diffusion_teleop": ["dcdp"],
+}
 
 
 def machine() -> dict:
