@@ -4,11 +4,12 @@
 #   1. record 200 training episodes (seeds 0..199, random/constant block drift of U[0, 2.5] px/step, 10 %
 #      without drift): the teleoperator drives (--execution teacher) and its actions label every frame; the
 #      frozen base plans its chunk every 8 steps from the same observations (what the person corrected);
-#   2. stage 1 with the stock lerobot-train (CPU, seed 1000): residual head reading block keypoints and the
-#      agent position -> <output dir>.
+#   2. stage 1 with the stock lerobot-train (CPU, seed 1000): residual head reading the block keypoints (with the
+#      agent position too it learns to extrapolate the agent's own motion: docs/ANALYSIS.md, T1) -> <output dir>.
+#      This is models/pusht-dcdp-state-teleop (T2), which does not help yet.
 # Usage: scripts/make_teleop_corrector.sh [base dir] [output dir] [extra lerobot-train flags]
 # Env: EPISODES (200), STEPS (1000), DATA (data/pusht_teleop), EXECUTION (teacher; open_loop: the base drives
-#      and the person only labels), REPLAN (8: the teleoperator's steps between plans).
+#      and the person only labels), REPLAN (8: the teleoperator's steps between plans), FEATURES (the keypoints).
 set -euo pipefail
 base=${1:-models/pusht-diffusion-state}; out=${2:-runs/dcdp_teleop}; shift $(( $# > 2 ? 2 : $# ))
 data=${DATA:-data/pusht_teleop}
@@ -20,5 +21,5 @@ if [ ! -f "$data/.dcdp_corrections" ]; then
 fi
 .venv/bin/lerobot-train --config_path=configs/policy/dcdp_pusht_residual.json \
   --policy.base_policy_path="$base" --dataset.repo_id=local/pusht_teleop --dataset.root="$data" \
-  --policy.observation_features='["observation.environment_state","observation.state"]' \
+  --policy.observation_features="${FEATURES:-[\"observation.environment_state\"]}" \
   --num_workers=2 --steps="${STEPS:-1000}" --save_freq=250 --output_dir="$out" "$@"
