@@ -88,7 +88,7 @@ def test_wall_clock_ticks_never_wait_for_a_slow_base(diffusion_base, demo_root) 
         torch.testing.assert_close(action, first[:, min(t, horizon - 1)])
     assert gated.blocked_calls == 1 and policy._planner.pending
     t_obs = policy._planner.t_obs
-    assert horizon - 2 <= t_obs < horizon  # planned shortly before the first chunk's end
+    assert 1 <= t_obs < horizon  # planned during the first chunk (how early depends on measured times)
     gated.gate.set()
     job_future = policy._planner._job[0]
     planned, _ = job_future.result(timeout=120)  # the test waits for the worker; the policy never does
