@@ -40,6 +40,7 @@ def test_step_clock_gives_the_actions_of_sync_planning_with_that_delay(
     policy.config.planning, policy.config.planning_clock = "async", "steps"
     asynchronous = _run(policy, observations)
     assert policy._planner is not None  # the worker planned every chunk after the first
+    assert (policy._kernel is not None) == (mode == "dcdp")  # quiet ticks ran on the compiled kernel
     torch.testing.assert_close(asynchronous, sync, atol=1e-6, rtol=0)
     policy.config.planning = "sync"
     policy.config.inference_delay = delay + 1

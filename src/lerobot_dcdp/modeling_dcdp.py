@@ -812,6 +812,24 @@ class DCDPPolicy(PreTrainedPolicy):
             self._tick_s = _smoothed(self._tick_s, now - self._tick_at)
         self._tick_at = now
         prepared = self.source.observe(batch)
+        planner = self._planner
+        pending = planner is not None and planner.pending
+        quiet = (  # neither submits nor switches a chunk: the compiled kernel does the whole step
+            self._chunk is not None
+            and not (not pending and self._step >= horizon - self._planning_lead())
+            and not (pending and self._step >= horizon)
+        )
+        if mode == "dcdp" and quiet and self._kernel is not None and self._terms is not None:
+            step = min(self._step, horizon - 1)
+            self.last_step = step
+            self._step += 1
+            self._t += 1
+            x = torch.cat([batch[k] for k in self.frame_encoder.state_keys], dim=-1)
+            action, self._bank, self._rep = self._run_kernel(
+                self._kernel, x, self._bank, self._at_plan, self._terms[:, step], self._w_step_np,
+                self._chunk[:, step], self._half_np,
+            )  # fmt: skip
+            return action
         if mode == "dcdp":
             self._push_frame(batch)
         anchored = mode == "object_anchored" or (mode == "dcdp" and cfg.anchor_input)
@@ -878,6 +896,7 @@ class DCDPPolicy(PreTrainedPolicy):
         elif self.fast_inference and not cfg.anchor_input:
             unit = to_unit_range(chunk, self.action_low, self.action_high)
             self._terms, self._w_step = self.residual.chunk_terms(self._z, unit, self._at_plan)
+            self._prepare_kernel()
 
     def close(self) -> None:
         """Stop the asynchronous planner's worker thread (``planning='async'``); the policy stays usable."""
@@ -893,8 +912,8 @@ class DCDPPolicy(PreTrainedPolicy):
 
     def _kernel_applies(self) -> bool:
         """Whether the compiled per-step kernel covers this corrector as it runs now: a residual head without
-        anchor input, inference delay or asynchronous planning, vector frames, float32 on CPU, eval mode,
-        ``fast_inference``."""
+        anchor input or a synchronous inference delay, vector frames, float32 on CPU, eval mode,
+        ``fast_inference`` (with ``planning='async'``: the ticks that neither submit nor switch a chunk)."""
         cfg = self.config
         weight = self.residual.net[0].weight if cfg.correction == "residual" else None
         if not (
@@ -902,7 +921,7 @@ class DCDPPolicy(PreTrainedPolicy):
             and self.fast_inference
             and cfg.compiled_kernel != "off"
             and not self.training
-            and not (cfg.anchor_input or cfg.inference_delay or cfg.planning == "async")
+            and not (cfg.anchor_input or (cfg.inference_delay and cfg.planning == "sync"))
             and weight.device.type == "cpu"
             and weight.dtype == torch.float32
         ):
