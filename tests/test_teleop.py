@@ -35,6 +35,27 @@ def _feedback(obs: dict) -> dict:
     return fb
 
 
+def _evaluate_one_episode(ckpt: Path, *env_flags: str, cwd: Path) -> None:
+    """One 10-step episode of the stock lerobot-eval with keypoint observations; it must report it."""
+    evaluation = cwd / "eval"
+    run(
+        [
+            str(BIN / "lerobot-eval"),
+            f"--policy.path={ckpt}",
+            *env_flags,
+            "--env.obs_type=environment_state_agent_pos",
+            "--env.episode_length=10",
+            "--eval.n_episodes=1",
+            "--eval.batch_size=1",
+            "--eval.use_async_envs=false",
+            "--policy.device=cpu",
+            f"--output_dir={evaluation}",
+        ],
+        cwd=cwd,
+    )
+    assert json.loads((evaluation / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
+
+
 def test_block_pose_is_recovered_from_its_keypoints() -> None:
     from lerobot_dcdp.pusht.geometry import keypoints
 
@@ -154,24 +175,7 @@ def test_teleoperated_corrections_train_and_evaluate_through_the_clis(diffusion_
     )
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
     assert json.loads((ckpt / "config.json").read_text())["correction"] == "residual"
-    evaluation = tmp_path / "eval"
-    run(
-        [
-            str(BIN / "lerobot-eval"),
-            f"--policy.path={ckpt}",
-            "--env.type=pusht_perturbed",
-            "--env.perturbation=constant",
-            "--env.obs_type=environment_state_agent_pos",
-            "--env.episode_length=10",
-            "--eval.n_episodes=1",
-            "--eval.batch_size=1",
-            "--eval.use_async_envs=false",
-            "--policy.device=cpu",
-            f"--output_dir={evaluation}",
-        ],
-        cwd=tmp_path,
-    )
-    assert json.loads((evaluation / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
+    _evaluate_one_episode(ckpt, "--env.type=pusht_perturbed", "--env.perturbation=constant", cwd=tmp_path)
 
 
 def test_a_teacher_policy_labels_every_step_with_its_own_action(diffusion_base, act_base, tmp_path) -> None:
@@ -271,20 +275,4 @@ def test_any_lerobot_env_and_a_teacher_policy_through_the_clis(diffusion_base, a
         ],
         cwd=tmp_path,
     )
-    evaluation = tmp_path / "eval"
-    run(
-        [
-            str(BIN / "lerobot-eval"),
-            f"--policy.path={out / 'checkpoints' / 'last' / 'pretrained_model'}",
-            "--env.type=pusht",
-            "--env.obs_type=environment_state_agent_pos",
-            "--env.episode_length=10",
-            "--eval.n_episodes=1",
-            "--eval.batch_size=1",
-            "--eval.use_async_envs=false",
-            "--policy.device=cpu",
-            f"--output_dir={evaluation}",
-        ],
-        cwd=tmp_path,
-    )
-    assert json.loads((evaluation / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
+    _evaluate_one_episode(out / "checkpoints" / "last" / "pretrained_model", "--env.type=pusht", cwd=tmp_path)

@@ -162,6 +162,12 @@ class DCDPPolicy(PreTrainedPolicy):
         self.register_buffer("action_high", high, persistent=False)
         self._frame_keys = list(state_dims) + image_keys
         self._needed_keys = sorted(set(self._frame_keys) | set(base.config.input_features or {}))
+        declared = {**(base.config.input_features or {}), **(config.input_features or {})}
+        #: the shape (without batch) every observation key the policy reads must have, checked every step
+        self._expected_shapes = {
+            k: tuple(declared[k].shape) if k in declared else None
+            for k in dict.fromkeys([*self._frame_keys, *self._needed_keys])
+        }
         #: residual: sum the head's fixed inputs once per chunk and, on CPU, run the rest of each step as one
         #: compiled kernel (step_kernel.py); same actions up to float rounding. False: the plain eager path.
         #: Both are chosen (and the kernel's weights re-packed if they changed) at planning steps only.
@@ -627,13 +633,12 @@ class DCDPPolicy(PreTrainedPolicy):
             raise ValueError(f"observation is missing {missing}; it has {sorted(batch)}")
         planned = None if self._chunk is None else self._chunk.shape[0]
         mid_chunk = planned is not None and (self._step != 0 or self.config.planning == "async")
-        features = {**(self.base.config.input_features or {}), **(self.config.input_features or {})}
-        for key in dict.fromkeys([*self._frame_keys, *self._needed_keys]):
-            x, feature = batch[key], features.get(key)
-            if feature is not None and tuple(x.shape[1:]) != tuple(feature.shape):
+        for key, shape in self._expected_shapes.items():
+            x = batch[key]
+            if shape is not None and tuple(x.shape[1:]) != shape:
                 raise ValueError(
                     f"observation {key!r} has shape {tuple(x.shape)}, expected (batch, "
-                    f"{', '.join(map(str, feature.shape))}) as the corrector and its base were trained"
+                    f"{', '.join(map(str, shape))}) as the corrector and its base were trained"
                 )
             if mid_chunk and x.shape[0] != planned:
                 width = ", ".join(map(str, x.shape[1:]))
@@ -824,12 +829,9 @@ class DCDPPolicy(PreTrainedPolicy):
             self.last_step = step
             self._step += 1
             self._t += 1
-            x = torch.cat([batch[k] for k in self.frame_encoder.state_keys], dim=-1)
-            action, self._bank, self._rep = self._run_kernel(
-                self._kernel, x, self._bank, self._at_plan, self._terms[:, step], self._w_step_np,
-                self._chunk[:, step], self._half_np,
-            )  # fmt: skip
-            return action
+            return self._kernel_action(
+                torch.cat([batch[k] for k in self.frame_encoder.state_keys], dim=-1), step
+            )
         if mode == "dcdp":
             self._push_frame(batch)
         anchored = mode == "object_anchored" or (mode == "dcdp" and cfg.anchor_input)
@@ -990,6 +992,10 @@ class DCDPPolicy(PreTrainedPolicy):
         self.last_step = step
         self._step = (self._step + 1) % self.config.n_action_steps
         self._t += 1
+        return self._kernel_action(x, step)
+
+    def _kernel_action(self, x: Tensor, step: int) -> Tensor:
+        """Chunk step ``step`` on the compiled kernel from the frame vector ``x``; updates bank and rep."""
         action, self._bank, self._rep = self._run_kernel(
             self._kernel,
             x,
