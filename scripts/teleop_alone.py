@@ -50,7 +50,8 @@ def main() -> None:
         env.close()
     print(
         f"magnitude {magnitude} replan_every {replan}: success {np.mean(success):.2f} "
-        f"score {np.mean(score):.3f} ({1000 * (time.time() - started) / steps:.1f} ms/step, {teleop.plans} plans)"
+        f"score {np.mean(score):.3f} ({1000 * (time.time() - started) / steps:.1f} ms/step, "
+        f"{teleop.plans} plans)"
     )
 
 
