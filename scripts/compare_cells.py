@@ -42,7 +42,8 @@ def main() -> None:
             r = np.asarray(cell["max_rewards"])[keep]
             ok = np.asarray(cell["successes"], dtype=float)[keep]
             se = r.std(ddof=1) / np.sqrt(len(r)) if len(r) > 1 else 0.0
-            print(f"  {label:>10s} {method:16s} score {r.mean():.3f} +- {se:.3f}  success {100 * ok.mean():3.0f} %")
+            score = f"score {r.mean():.3f} +- {se:.3f}"
+            print(f"  {label:>10s} {method:16s} {score}  success {100 * ok.mean():3.0f} %")
 
 
 if __name__ == "__main__":
