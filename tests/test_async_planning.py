@@ -15,7 +15,7 @@ def _policy(diffusion_base, demo_root, **kw):
     policy = make_dcdp_policy(diffusion_base, demo_root, correction="residual", latent_dim=4, **kw).eval()
     torch.manual_seed(1)
     with torch.no_grad():  # a corrector that moves the plan, so its every input matters
-        for p in policy.residual.parameters():
+        for p in policy.corrector.residual.parameters():
             p.add_(0.05 * torch.randn_like(p))
     return policy
 
@@ -39,8 +39,8 @@ def test_step_clock_gives_the_actions_of_sync_planning_with_that_delay(
     sync = _run(policy, observations)
     policy.config.planning, policy.config.planning_clock = "async", "steps"
     asynchronous = _run(policy, observations)
-    assert policy._planner is not None  # the worker planned every chunk after the first
-    assert (policy._kernel is not None) == (mode == "dcdp")  # quiet ticks ran on the compiled kernel
+    assert policy._async.planner is not None  # the worker planned every chunk after the first
+    assert (policy.state.kernel is not None) == (mode == "dcdp")  # quiet ticks ran on the compiled kernel
     torch.testing.assert_close(asynchronous, sync, atol=1e-6, rtol=0)
     policy.config.planning = "sync"
     policy.config.inference_delay = delay + 1
@@ -87,11 +87,11 @@ def test_wall_clock_ticks_never_wait_for_a_slow_base(diffusion_base, demo_root) 
             first = policy.planned_chunk.clone()
         assert policy.last_step == min(t, horizon - 1)
         torch.testing.assert_close(action, first[:, min(t, horizon - 1)])
-    assert gated.blocked_calls == 1 and policy._planner.pending
-    t_obs = policy._planner.t_obs
+    assert gated.blocked_calls == 1 and policy._async.planner.pending
+    t_obs = policy._async.planner.t_obs
     assert 1 <= t_obs < horizon  # planned during the first chunk (how early depends on measured times)
     gated.gate.set()
-    job_future = policy._planner._job[0]
+    job_future = policy._async.planner._job[0]
     planned, _ = job_future.result(timeout=120)  # the test waits for the worker; the policy never does
     action = policy.select_action(dict(observations[12]))
     age = 12 - t_obs
@@ -99,9 +99,9 @@ def test_wall_clock_ticks_never_wait_for_a_slow_base(diffusion_base, demo_root) 
     torch.testing.assert_close(action, planned[:, age])
     torch.testing.assert_close(policy.planned_chunk[:, 0], planned[:, age])
     policy.reset()  # a new episode: nothing pending, the worker idle
-    assert not policy._planner.pending
+    assert not policy._async.planner.pending
     policy.close()
-    assert policy._planner is None
+    assert policy._async.planner is None
 
 
 def test_async_planning_is_refused_where_every_step_replans(diffusion_base, demo_root) -> None:

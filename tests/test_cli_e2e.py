@@ -235,10 +235,10 @@ def test_quantile_normalised_base_through_the_clis(demo_root, tmp_path) -> None:
     base = tmp_path / "act" / "checkpoints" / "last" / "pretrained_model"
     ckpt = train(base, demo_root, tmp_path / "train", steps=2)
     policy = DCDPPolicy.from_pretrained(ckpt)
-    mode, stats = policy._base_stats["action"]
+    mode, stats = policy.normalizer.stats["action"]
     assert mode == "QUANTILES"
-    torch.testing.assert_close(policy.action_low, normalize(stats["min"], stats, mode))
-    torch.testing.assert_close(policy.action_high, normalize(stats["max"], stats, mode))
+    torch.testing.assert_close(policy.corrector.action_low, normalize(stats["min"], stats, mode))
+    torch.testing.assert_close(policy.corrector.action_high, normalize(stats["max"], stats, mode))
     for mode in ("dcdp", "open_loop", "closed_loop", "temporal_ensemble", "object_anchored"):
         out = tmp_path / f"eval_{mode}"
         evaluate(ckpt, out, f"--policy.execution={mode}")

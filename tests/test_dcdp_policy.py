@@ -74,8 +74,8 @@ def test_padding_is_masked(diffusion_base, demo_root) -> None:
         ref, _ = policy(batch)
         batch["action"] = batch["action"].clone()
         batch["action"][:, 4:] += 100.0  # padded targets must not matter ... except through the encoder input
-        policy.encoder.net[-1].weight.data.zero_()  # make z independent of the chunk for this check
-        policy.encoder.net[-1].bias.data.zero_()
+        policy.corrector.encoder.net[-1].weight.data.zero_()  # make z independent of the chunk for this check
+        policy.corrector.encoder.net[-1].bias.data.zero_()
         a, _ = policy(batch)
         batch["action"][:, 4:] -= 100.0
         b, _ = policy(batch)
@@ -159,16 +159,18 @@ def test_dcdp_step_equals_offline_chunk_decoding(act_base, demo_root) -> None:
     online = torch.stack([policy.select_action(dict(o)) for o in obs], dim=1)  # (B, 2H, A)
     reference = load_base(act_base)
     with torch.no_grad():
-        keys = policy._frame_keys
-        frames = torch.stack([policy.frame_encoder({k: o[k] for k in keys}) for o in obs], dim=1)
+        keys = policy.corrector.frame_keys
+        frames = torch.stack([policy.corrector.frame_encoder({k: o[k] for k in keys}) for o in obs], dim=1)
         frames = torch.cat([frames[:, :1].expand(-1, M - 1, -1), frames], dim=1)
         windows = sliding_windows(frames, M)  # (B, 2H, M, d)
-        feats = torch.stack([policy.extractor(windows[:, s])[0] for s in range(2 * H)], dim=1)
+        feats = torch.stack([policy.corrector.extractor(windows[:, s])[0] for s in range(2 * H)], dim=1)
         for c in range(2):
             chunk = reference.predict_action_chunk(dict(obs[c * H]))[:, :H]
-            z = policy.encode_chunk(chunk)
+            z = policy.corrector.encode_chunk(chunk)
             dec = from_unit_range(
-                policy.decoder(z, feats[:, c * H : (c + 1) * H]), policy.action_low, policy.action_high
+                policy.corrector.decoder(z, feats[:, c * H : (c + 1) * H]),
+                policy.corrector.action_low,
+                policy.corrector.action_high,
             )
             torch.testing.assert_close(online[:, c * H : (c + 1) * H], dec, rtol=1e-5, atol=1e-5)
 
@@ -179,9 +181,9 @@ def test_batch_of_three_and_reset(act_base, demo_root) -> None:
     policy.reset()
     first = [policy.select_action(dict(o)) for o in obs]
     assert all(a.shape == (3, 2) for a in first)
-    assert policy._bank.shape == (3, policy.config.n_history, policy.config.feature_dim)
+    assert policy.state.bank.shape == (3, policy.config.n_history, policy.config.feature_dim)
     policy.reset()
-    assert policy._bank is None and policy._step == 0
+    assert policy.state.bank is None and policy.state.step == 0
     again = [policy.select_action(dict(o)) for o in obs]
     for a, b in zip(first, again, strict=True):
         assert torch.equal(a, b)
@@ -227,7 +229,7 @@ def test_corrector_weights_load_strictly(diffusion_base, demo_root, tmp_path) ->
     policy = make_dcdp_policy(diffusion_base, demo_root, correction="residual")
     policy.save_pretrained(tmp_path)
     weights = load_file(tmp_path / "model.safetensors")
-    dropped = sorted(k for k in weights if k.startswith("residual."))[-1]
+    dropped = sorted(k for k in weights if k.startswith("corrector.residual."))[-1]
     save_file({k: v for k, v in weights.items() if k != dropped}, tmp_path / "model.safetensors")
     with pytest.raises(ValueError, match=f"corrector weights.*{dropped}"):
         DCDPPolicy.from_pretrained(tmp_path)

@@ -64,4 +64,4 @@ def test_fastumi_to_act_base_to_dcdp_with_images(tmp_path) -> None:
     from safetensors.torch import load_file
 
     weights = load_file(ckpt / "model.safetensors")
-    assert any(k.startswith("frame_encoder.image.") for k in weights)  # the ResNet18 path was built and saved
+    assert any(k.startswith("corrector.frame_encoder.image.") for k in weights)  # ResNet18 built, saved

@@ -104,12 +104,14 @@ def test_corrections_measure_change_since_the_observation_planned_from(execution
     for t, o in enumerate(obs):
         policy.select_action(dict(o))
         if t == H:  # replan at step H, planned from step H - d
-            torch.testing.assert_close(policy._anchor_plan, policy._anchor_points(obs[H - d]))
-            assert torch.equal(policy._chunk[0, :, 0], torch.full((H,), float(H - d)))
-            assert torch.equal(policy._chunk[0, :, 1], torch.arange(H, 2 * H, dtype=torch.float32))
+            torch.testing.assert_close(policy.state.anchor_plan, policy.anchor.points(obs[H - d]))
+            assert torch.equal(policy.state.chunk[0, :, 0], torch.full((H,), float(H - d)))
+            assert torch.equal(policy.state.chunk[0, :, 1], torch.arange(H, 2 * H, dtype=torch.float32))
             if execution == "dcdp":
-                rep_then = policy.frame_encoder.encode({k: obs[H - d][k] for k in policy._frame_keys})[1]
-                torch.testing.assert_close(policy._at_plan, rep_then)
+                rep_then = policy.corrector.frame_encoder.encode(
+                    {k: obs[H - d][k] for k in policy.corrector.frame_keys}
+                )[1]
+                torch.testing.assert_close(policy.state.at_plan, rep_then)
 
 
 @pytest.mark.parametrize("execution", ["open_loop", "closed_loop", "object_anchored", "dcdp"])

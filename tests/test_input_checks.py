@@ -49,10 +49,10 @@ def test_a_non_finite_observation_is_refused_before_it_enters_the_history(policy
     policy, obs = policy_and_obs
     policy.reset()
     policy.select_action(dict(obs[0]))
-    bank = policy._bank.clone()
+    bank = policy.state.bank.clone()
     bad = dict(obs[1])
     bad["observation.state"] = bad["observation.state"].clone()
     bad["observation.state"][1, 0] = float("nan")
     with pytest.raises(ValueError, match=r"'observation.state' holds a non-finite value"):
         policy.select_action(bad)
-    assert torch.equal(policy._bank, bank) and policy._step == 1  # nothing advanced
+    assert torch.equal(policy.state.bank, bank) and policy.state.step == 1  # nothing advanced

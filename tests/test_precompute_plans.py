@@ -56,9 +56,10 @@ def test_stage_one_takes_the_base_plan_from_plan_time(act_base, plans_root) -> N
     batch = next(training_batches(policy, plans_root, batch_size=8))
     assert batch[KEY].shape[1:] == (8, 32)  # the column at every frame of the window
     torch.manual_seed(0)
-    _, plan, step, target, _ = policy._synthesised_sample(batch)
+    sample = policy.corrector.samples.synthesised(batch)
+    plan, step, target = sample.plan, sample.step, sample.target
     rows = torch.arange(len(step))
-    expected = policy._norm("action", batch[KEY].reshape(8, 8, 16, 2)[rows, 7 - step][:, :8])
+    expected = policy.normalizer("action", batch[KEY].reshape(8, 8, 16, 2)[rows, 7 - step][:, :8])
     torch.testing.assert_close(plan, expected)
     torch.testing.assert_close(target, plan[rows, step])  # a still scene keeps the base's plan
 

@@ -193,14 +193,16 @@ def test_object_anchored_is_open_loop_while_the_object_stands_still_and_follows_
     torch.testing.assert_close(a, b, atol=1e-5, rtol=0)
     # the block moves by +10 px in x (raw) after plan time: every later action moves by +10 px too
     key = "observation.environment_state"
-    raw = anchored._norm(key, first[key], inverse=True)
+    raw = anchored.normalizer(key, first[key], inverse=True)
     moved = dict(first)
-    moved[key] = anchored._norm(key, raw + torch.tensor([10.0, 0.0]).repeat(8))
+    moved[key] = anchored.normalizer(key, raw + torch.tensor([10.0, 0.0]).repeat(8))
     anchored.reset()
     torch.manual_seed(0)
     anchored.select_action(dict(first))
-    got = anchored._norm("action", anchored.select_action(moved), inverse=True)
-    want = anchored._norm("action", anchored.planned_chunk[:, 1], inverse=True) + torch.tensor([10.0, 0.0])
+    got = anchored.normalizer("action", anchored.select_action(moved), inverse=True)
+    want = anchored.normalizer("action", anchored.planned_chunk[:, 1], inverse=True) + torch.tensor(
+        [10.0, 0.0]
+    )
     torch.testing.assert_close(got, want, atol=1e-3, rtol=0)
 
 
@@ -309,7 +311,11 @@ def test_fresh_residual_with_anchor_input_is_open_loop_and_sees_the_proposal(
     got = [policy.select_action(dict(o)) for o in obs]
     for e, g in zip(expected, got, strict=True):
         assert torch.equal(e, g)
-    assert policy._z is not None and policy._at_plan is not None and policy._anchor_plan is not None
+    assert (
+        policy.state.z is not None
+        and policy.state.at_plan is not None
+        and policy.state.anchor_plan is not None
+    )
 
 
 def test_residual_loss_falls_and_stage2_matches_training(diffusion_base, corrections_root) -> None:
@@ -393,7 +399,7 @@ def test_per_chunk_terms_give_the_straightforward_actions(diffusion_base, correc
     policy = _residual_policy(diffusion_base, corrections_root, inference_delay=delay).eval()
     torch.manual_seed(7)
     with torch.no_grad():  # a corrector that moves the plan: every part of the head matters
-        for p in policy.residual.parameters():
+        for p in policy.corrector.residual.parameters():
             p.add_(0.05 * torch.randn_like(p))
     obs = _normalised(policy, 2, 20)
     runs = {}
@@ -402,11 +408,11 @@ def test_per_chunk_terms_give_the_straightforward_actions(diffusion_base, correc
         torch.manual_seed(3)
         policy.reset()
         runs[fast] = torch.stack([policy.select_action(dict(o)) for o in obs])
-        assert (policy._terms is not None) == fast
-        assert (policy._step_graph is not None) == (fast and delay == 0)  # the compiled per-step kernel
+        assert (policy.state.terms is not None) == fast
+        assert (policy.state.kernel is not None) == (fast and delay == 0)  # the compiled per-step kernel
     assert (runs[True] - runs[False]).abs().max() <= 1e-6
     with torch.no_grad():  # new weights (a training step, a reload): the fast path must follow them
-        policy.residual.net[-1].bias.add_(0.1)
+        policy.corrector.residual.net[-1].bias.add_(0.1)
     for fast in (True, False):
         policy.fast_inference = fast
         torch.manual_seed(3)
@@ -414,7 +420,7 @@ def test_per_chunk_terms_give_the_straightforward_actions(diffusion_base, correc
         runs[fast] = torch.stack([policy.select_action(dict(o)) for o in obs])
     assert (runs[True] - runs[False]).abs().max() <= 1e-6
     with torch.no_grad():
-        policy.residual.net[-1].bias.sub_(0.1)
+        policy.corrector.residual.net[-1].bias.sub_(0.1)
     policy.config.execution = "open_loop"
     torch.manual_seed(3)
     policy.reset()
@@ -429,10 +435,10 @@ def test_compiled_step_refuses_a_batch_that_changed_mid_chunk(diffusion_base, co
     policy.reset()
     for o in two:  # a planning step and one step on the compiled kernel
         policy.select_action(dict(o))
-    assert policy._step_graph is not None and policy._step == 2
+    assert policy.state.kernel is not None and policy.state.step == 2
     with pytest.raises(ValueError, match=r"expected \(batch, features\) = \(2, 16\)"):
         policy.select_action(dict(one[0]))
-    assert policy._step == 2  # nothing advanced
+    assert policy.state.step == 2  # nothing advanced
     policy.reset()
     assert policy.select_action(dict(one[0])).shape[0] == 1  # a new episode may change the batch
 
@@ -473,16 +479,16 @@ def test_the_kernel_follows_writes_through_param_data(diffusion_base, correction
     """Writes through ``param.data`` bump no tensor version: the kernel's packed weights still follow them."""
     policy = _residual_policy(diffusion_base, corrections_root).eval()
     obs = _normalised(policy, 2, 12)
-    policy.residual.net[-1].bias.data.add_(0.1)  # a moving corrector, written through .data
+    policy.corrector.residual.net[-1].bias.data.add_(0.1)  # a moving corrector, written through .data
     runs = {}
     for fast in (True, False):
         policy.fast_inference = fast
         torch.manual_seed(3)
         policy.reset()
         runs[fast] = torch.stack([policy.select_action(dict(o)) for o in obs])
-        assert (policy._step_graph is not None) == fast
+        assert (policy.state.kernel is not None) == fast
     assert (runs[True] - runs[False]).abs().max() <= 1e-6
-    policy.residual.net[-1].bias.data.sub_(0.2)
+    policy.corrector.residual.net[-1].bias.data.sub_(0.2)
     for fast in (True, False):
         policy.fast_inference = fast
         torch.manual_seed(3)

@@ -82,3 +82,35 @@ def test_every_config_parses(path: Path) -> None:
         for key, value in content["env"].items():
             if key != "type":
                 assert getattr(cfg, key) == value, key
+
+
+@pytest.mark.parametrize("corrector", CORRECTORS, ids=lambda p: p.name)
+def test_shipped_checkpoint_loads_unchanged(corrector, tmp_path) -> None:
+    """The shipped files keep the key layout they were saved with (before the corrector's parts moved under
+    ``corrector.``): every stored tensor lands in its module, the corrector hash is the file's, and a
+    re-saved copy (new layout) gives the same actions."""
+    from safetensors.torch import load_file
+
+    from lerobot_dcdp.correction import state_dict_sha256
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+
+    stored = load_file(corrector / "model.safetensors")
+    policy = DCDPPolicy.from_pretrained(corrector).eval()
+    loaded = policy.corrector.state_dict()
+    assert set(stored) == set(loaded), "the shipped file and the corrector disagree on names"
+    for key, value in stored.items():
+        assert torch.equal(loaded[key], value), key
+    assert policy.corrector_sha256() == state_dict_sha256(stored)
+
+    policy.save_pretrained(tmp_path)
+    assert all(k.startswith("corrector.") for k in load_file(tmp_path / "model.safetensors"))
+    again = DCDPPolicy.from_pretrained(tmp_path).eval()
+    pre, _ = make_dcdp_pre_post_processors(policy.config)
+    obs = [pre(dict(o)) for o in env_observations(1, 3)]
+    runs = []
+    for p in (policy, again):  # a diffusion base draws noise: the same seed for both
+        p.reset()
+        torch.manual_seed(0)
+        runs.append(torch.stack([p.select_action(dict(o)) for o in obs]))
+    torch.testing.assert_close(runs[1], runs[0], rtol=0, atol=0)

@@ -102,7 +102,7 @@ torch.manual_seed(0)
 obs = {"observation.state": torch.tensor([[200.0, 300.0]]) / 512 * 2 - 1,
        "observation.environment_state": torch.linspace(-0.5, 0.5, 16).unsqueeze(0)}
 acts = [p.select_action(dict(obs)) for _ in range(10)]
-print("KERNEL", p._kernel_supported, "ACTIONS", torch.cat(acts).sum().item())
+print("KERNEL", p.kernel._supported, "ACTIONS", torch.cat(acts).sum().item())
 """
 
 

@@ -115,3 +115,53 @@ def load_base_stats(ref: str, relative_to: str | Path | None = None) -> dict[str
                 }
                 out[key] = (str(mode), tensors)
     return out
+
+
+def check_against_base(config, base: PreTrainedPolicy, chunk_length: int, max_length: int) -> None:
+    """Refuse a corrector config its base cannot serve, naming the fix; without dataset/env features, take
+    the base's.
+
+    Args:
+        config: The corrector's ``DCDPConfig`` (its ``input_features`` / ``output_features`` may be empty).
+        base: The loaded base policy.
+        chunk_length: Actions the base returns per call (``ChunkSource.chunk_length``).
+        max_length: The most actions one call can return (``ChunkSource.max_length``).
+    """
+    bcfg = base.config
+    if config.n_action_steps > chunk_length:
+        raise ValueError(
+            f"n_action_steps={config.n_action_steps} exceeds the base's chunk: base type {bcfg.type!r} "
+            f"returns {chunk_length} actions per call; use --policy.n_action_steps between 1 and "
+            f"{chunk_length}"
+        )
+    if config.n_action_steps + config.inference_delay > max_length:
+        raise ValueError(
+            f"inference_delay={config.inference_delay} needs n_action_steps + inference_delay = "
+            f"{config.n_action_steps + config.inference_delay} actions per chunk, but base type "
+            f"{bcfg.type!r} returns at most {max_length}"
+        )
+    if config.output_features and bcfg.output_features:
+        ours, theirs = config.action_feature, bcfg.action_feature
+        if ours is not None and theirs is not None and tuple(ours.shape) != tuple(theirs.shape):
+            raise ValueError(
+                f"feature mismatch on 'action': dataset/env shape {tuple(ours.shape)}, "
+                f"base {tuple(theirs.shape)}"
+            )
+    if not config.input_features:
+        config.input_features = dict(bcfg.input_features)
+        config.output_features = dict(bcfg.output_features)
+        return
+    for key, ft in (bcfg.input_features or {}).items():
+        if key not in config.input_features:
+            raise ValueError(
+                f"feature mismatch: the base needs input {key!r}, which the dataset/env does not provide "
+                f"(has {sorted(config.input_features)}). Fix: train on a dataset that records {key!r} "
+                "(re-record or convert it with that feature), evaluate in an env observation type "
+                "that reports it (PushT keypoints: --env.obs_type=environment_state_agent_pos), or "
+                "wrap a base trained without it"
+            )
+        if tuple(config.input_features[key].shape) != tuple(ft.shape):
+            raise ValueError(
+                f"feature mismatch on {key!r}: dataset/env shape {tuple(config.input_features[key].shape)}, "
+                f"base {tuple(ft.shape)}"
+            )

@@ -21,7 +21,6 @@ import numpy as np
 import torch
 
 from lerobot_dcdp.benchmark import shipped_model
-from lerobot_dcdp.correction import to_unit_range
 
 MODES = ("open_loop", "dcdp", "object_anchored", "closed_loop")
 
@@ -75,47 +74,43 @@ def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str
     env.close()
     cfg = policy.config
     cfg.execution = "dcdp"
+    corrector, kernel = policy.corrector, policy.kernel
     parts: dict[str, list[float]] = {"frame encoding + bank": [], "extractor": [], "head": []}
     for fast in (False, True):
         policy.fast_inference = fast
         policy.reset()
         policy.select_action(dict(batch))  # plans a chunk: z, plan-time state (and the kernel)
-        if fast and policy._step_graph is not None:
+        state = policy.state
+        if fast and state.kernel is not None:
             parts["whole step, compiled kernel"] = []
         for i in range(warmup + steps):
             step = 1 + i % (cfg.n_action_steps - 1)
             if fast:
-                if policy._step_graph is None:
+                if state.kernel is None:
                     break
-                policy._step = step
                 t0 = time.perf_counter()
-                policy._kernel_step(batch)
+                kernel.act(state, step, batch)
                 if i >= warmup:
                     parts["whole step, compiled kernel"].append((time.perf_counter() - t0) * 1e3)
                 continue
             t0 = time.perf_counter()
-            policy._push_frame(batch)
+            corrector.push_frame(state, batch)
             t1 = time.perf_counter()
-            feature, _ = policy.extractor(policy._bank)
+            corrector.feature(state)
             t2 = time.perf_counter()
-            if cfg.correction == "residual":
-                policy.residual_step(feature, step, batch)
-            else:
-                policy.decode_step(feature, step)
+            corrector.step(state, step, batch)  # computes F again: the head is this call minus the extractor
             t3 = time.perf_counter()
             if i >= warmup:
                 parts["frame encoding + bank"].append((t1 - t0) * 1e3)
                 parts["extractor"].append((t2 - t1) * 1e3)
-                parts["head"].append((t3 - t2) * 1e3)
-    chunk = policy.planned_chunk
+                parts["head"].append(max(0.0, (t3 - t2) - (t2 - t1)) * 1e3)
+    state, chunk = policy.state, policy.planned_chunk
     per_chunk = []
     for i in range(warmup + steps // 4):
         t0 = time.perf_counter()
-        policy._z = policy.encode_chunk(chunk)
-        if policy._terms is not None:
-            unit = to_unit_range(chunk, policy.action_low, policy.action_high)
-            policy._terms, policy._w_step = policy.residual.chunk_terms(policy._z, unit, policy._at_plan)
-            policy._prepare_kernel()
+        corrector.begin_chunk(state, chunk)
+        if kernel is not None:
+            kernel.prepare(state)
         if i >= warmup:
             per_chunk.append((time.perf_counter() - t0) * 1e3 / cfg.n_action_steps)
     policy.fast_inference = True

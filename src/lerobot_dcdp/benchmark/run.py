@@ -80,7 +80,6 @@ def load_model(corrector_dir: str):
     from lerobot.policies.factory import make_pre_post_processors
 
     import lerobot_policy_dcdp  # noqa: F401
-    from lerobot_dcdp.correction import state_dict_sha256
     from lerobot_dcdp.modeling_dcdp import DCDPPolicy
 
     policy = DCDPPolicy.from_pretrained(corrector_dir)
@@ -88,7 +87,7 @@ def load_model(corrector_dir: str):
     pre, post = make_pre_post_processors(policy.config, pretrained_path=corrector_dir)
     identity = {
         "corrector": corrector_dir,
-        "corrector_sha256": state_dict_sha256(policy.state_dict()),
+        "corrector_sha256": policy.corrector_sha256(),
         "base": policy.config.base_policy_path,
         "base_type": policy.config.base_policy_type,
         "base_weights_sha256": policy.config.base_weights_sha256,

@@ -380,7 +380,7 @@ def recorded_keys(policy) -> list[str]:
     from lerobot.configs.types import FeatureType
 
     features = {**(policy.base.config.input_features or {}), **(policy.config.input_features or {})}
-    keys = sorted(set(policy._needed_keys) | ({policy.config.anchor_feature} - {None}))
+    keys = sorted(set(policy.check.expected_shapes) | ({policy.config.anchor_feature} - {None}))
     images = [k for k in keys if k in features and features[k].type is FeatureType.VISUAL]
     if images:
         raise ValueError(
