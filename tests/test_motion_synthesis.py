@@ -180,3 +180,39 @@ def test_synthesis_refuses_an_anchor_the_corrector_does_not_read(diffusion_base,
     batch = next(training_batches(policy, demo_root, batch_size=4))
     with pytest.raises(ValueError, match="observation_features"):
         policy.forward(batch)
+
+
+def test_late_chunks_are_synthesised_from_an_older_plan_time_frame(diffusion_base, demo_root) -> None:
+    """``train_max_delay``: a sample's chunk was planned d steps before it started being executed, so its
+    plan-time frame is t-s-d (where the synthesised motion is the identity and the label's motion starts),
+    the step is still s, and the loss reads its reference there."""
+    policy = _policy(
+        diffusion_base,
+        demo_root,
+        motion_static_fraction=0.0,
+        motion_max_speed=4.0,
+        motions_per_sample=4,
+        train_max_delay=3,
+    )
+    assert policy.config.observation_delta_indices == list(range(-10, 1))  # K = max(M, H + 3) = 11
+    batch = next(training_batches(policy, demo_root, batch_size=16))
+    torch.manual_seed(0)
+    sample = policy.corrector.samples.synthesised(batch)
+    delay = sample.age - sample.step
+    assert (delay >= 0).all() and (delay <= 3).all() and len(set(delay.tolist())) == 4  # every delay drawn
+    kp = policy.normalizer(KEY, sample.batch[KEY], inverse=True)
+    kp = kp.reshape(*kp.shape[:2], -1, 2)
+    rows, k = torch.arange(len(delay)), kp.shape[1]
+    original = policy.normalizer(KEY, batch[KEY].repeat_interleave(4, 0), inverse=True).reshape(kp.shape)
+    then = k - 1 - sample.age
+    torch.testing.assert_close(kp[rows, then], original[rows, then])  # identity at the plan-time frame
+    moved_one_later = kp[rows, (then + 1).clamp_max(k - 1)] - original[rows, (then + 1).clamp_max(k - 1)]
+    assert (moved_one_later.norm(dim=-1).amax(-1)[sample.age > 0] > 1e-4).all()  # the motion starts there
+    rot, t = rigid_fit_2d(kp[rows, then], kp[:, -1])
+    raw = policy.normalizer("action", sample.plan[rows, sample.step], inverse=True)
+    expected = policy.normalizer("action", anchor_actions(raw, rot, t))
+    torch.testing.assert_close(sample.target, expected, atol=1e-4, rtol=1e-4)
+    # the executed entry s of a late demonstration chunk is still the demonstration's action at t
+    torch.testing.assert_close(sample.plan[rows, sample.step], batch["action"].repeat_interleave(4, 0)[:, 7])
+    loss, _ = policy.forward(batch)
+    assert torch.isfinite(loss)

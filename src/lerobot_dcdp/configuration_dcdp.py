@@ -116,6 +116,11 @@ class DCDPConfig(PreTrainedConfig):
             docs/ANALYSIS.md).
         motions_per_sample: ``residual`` on plain demonstrations: independent motions drawn per dataset
             sample (the batch is repeated this many times).
+        train_max_delay: ``residual`` on plain demonstrations: chunks that arrive late. Each synthesised
+            sample draws a delay d in [0, train_max_delay] (within the episode): the chunk was planned from
+            the observation d steps before it started being executed (its first d entries skipped), so the
+            corrector's plan-time frame is t-s-d while its step is s -- as ``inference_delay`` and
+            ``planning='async'`` run it. Lengthens the observation window to max(M, H + train_max_delay).
         backbone: Per-frame backbone: ``mlp`` for state/keypoint vectors, ``resnet18`` for images, ``auto``
             picks ``resnet18`` when the inputs hold images, else ``mlp``.
         observation_features: Observation keys the corrector reads; empty = every observation input of the
@@ -167,6 +172,7 @@ class DCDPConfig(PreTrainedConfig):
     motion_static_fraction: float = 0.25
     motion_label: str = "observed"
     motions_per_sample: int = 4
+    train_max_delay: int = 0
 
     backbone: str = "auto"
     observation_features: list[str] = field(default_factory=list)
@@ -243,6 +249,8 @@ class DCDPConfig(PreTrainedConfig):
             raise ValueError(f"motion_static_fraction must be in [0, 1], got {self.motion_static_fraction}")
         if self.motions_per_sample < 1:
             raise ValueError(f"motions_per_sample must be >= 1, got {self.motions_per_sample}")
+        if self.train_max_delay < 0:
+            raise ValueError(f"train_max_delay must be >= 0 control steps, got {self.train_max_delay}")
         if not self.change_scale > 0:
             raise ValueError(f"change_scale must be > 0, got {self.change_scale}")
         if not 0.0 < self.te_weight <= 1.0:
@@ -274,9 +282,10 @@ class DCDPConfig(PreTrainedConfig):
     def observation_delta_indices(self) -> list[int]:
         """``reconstruct``: observations t-M+1 .. t+H-1 (decoder step s sees the window ending at t+s:
         train as you infer). ``residual``: a sample is one control step t; observations t-K+1 .. t with
-        K = max(M, H) hold the history window and the frame at plan time t-s (s < H)."""
+        K = max(M, H + train_max_delay) hold the history window and the frame the plan was made from,
+        t-s-d (step s < H, delay d <= train_max_delay)."""
         if self.correction == "residual":
-            return list(range(1 - max(self.n_history, self.n_action_steps), 1))
+            return list(range(1 - max(self.n_history, self.n_action_steps + self.train_max_delay), 1))
         return list(range(1 - self.n_history, self.n_action_steps))
 
     @property

@@ -73,7 +73,8 @@ class ResidualCorrector(Corrector):
         # corrector reads images only), (B, K, r)
         rep = frames if vec is None else vec
         k = rep.shape[1]
-        idx = (k - 1 - step).clamp_min(0).view(-1, 1, 1).expand(-1, 1, rep.shape[-1])
+        then = (k - 1 - sample.age).clamp_min(0)  # the frame the chunk was planned from
+        idx = then.view(-1, 1, 1).expand(-1, 1, rep.shape[-1])
         at_plan = rep.gather(1, idx)[:, 0]
         plan_unit = self.to_unit(plan)
         mu, logvar = self.encoder(plan_unit)
@@ -84,7 +85,7 @@ class ResidualCorrector(Corrector):
         if cfg.anchor_input:
             kp = self.anchor.normalizer(self.anchor.key, batch[self.anchor.key], inverse=True)
             kp = kp.reshape(*kp.shape[:2], -1, 2)
-            proposal = self.to_unit(self.anchor.carry(plan[rows, step], kp[rows, k - 1 - step], kp[:, -1]))
+            proposal = self.to_unit(self.anchor.carry(plan[rows, step], kp[rows, then], kp[:, -1]))
             change = torch.cat([change, cfg.change_scale * (proposal - plan_s)], dim=-1)
         delta = self.residual(z, plan_s, feature, change, step)
         target = self.to_unit(sample.target.reshape(plan_s.shape))

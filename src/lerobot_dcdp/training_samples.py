@@ -27,7 +27,9 @@ class CorrectionSample:
     Attributes:
         batch: The observations (moved, for synthesised samples).
         plan: (B, H, A) the chunk being executed.
-        step: (B,) the step s of each sample in its chunk (plan time t-s).
+        step: (B,) the step s of each sample in its chunk.
+        age: (B,) steps from the observation the chunk was planned from to t: s, plus the delay d of a late
+            chunk (its plan-time frame is t-s-d).
         target: (B, A) the action to take at t.
         valid: (B,) 1 where the target is a real (not padded) action.
         synthesised: Whether the motion was synthesised (else recorded).
@@ -36,6 +38,7 @@ class CorrectionSample:
     batch: dict[str, Tensor]
     plan: Tensor
     step: Tensor
+    age: Tensor
     target: Tensor
     valid: Tensor
     synthesised: bool
@@ -60,7 +63,7 @@ class CorrectionSamples:
         if cfg.plan_feature in batch and cfg.plan_step_feature in batch:
             plan, step = self.recorded_plan(batch)
             target, valid = self.current_action(batch)
-            return CorrectionSample(batch, plan, step, target, valid, synthesised=False)
+            return CorrectionSample(batch, plan, step, step, target, valid, synthesised=False)
         if cfg.anchor_feature and cfg.anchor_feature in batch:
             return self.synthesised(batch)
         raise ValueError(
@@ -128,11 +131,12 @@ class CorrectionSamples:
     def synthesised(self, batch: dict[str, Tensor]) -> CorrectionSample:
         """A plain demonstration sample with synthesised object motion (motion_synthesis.py).
 
-        Each sample is repeated ``motions_per_sample`` times; each copy gets a step s (plan time t-s, inside
-        the episode), the demonstration's own chunk planned at t-s as the plan (or the base's chunk planned
-        then, when ``plan_feature`` holds one per frame), its own rigid motion of the anchor keypoints
-        through the window, and as the target the plan's action s carried with the object's motion since plan
-        time (``motion_label``: the whole motion the moved keypoints show, or only the synthesised one).
+        Each sample is repeated ``motions_per_sample`` times; each copy gets a step s and a delay d
+        (``train_max_delay``; plan time t-s-d, inside the episode), the demonstration's own actions from t-s
+        as the plan (or the base's chunk planned at t-s-d with its first d entries skipped, when
+        ``plan_feature`` holds one per frame), its own rigid motion of the anchor keypoints through the
+        window, and as the target the plan's action s carried with the object's motion since plan time
+        (``motion_label``: the whole motion the moved keypoints show, or only the synthesised one).
         """
         cfg, norm = self.config, self.norm
         horizon, key = cfg.n_action_steps, cfg.anchor_feature
@@ -167,15 +171,23 @@ class CorrectionSamples:
         history = (~pad).sum(1) - 1 if pad is not None else torch.full((b,), k - 1, device=kp.device)
         limit = torch.minimum(history.clamp_min(0), torch.full_like(history, min(horizon, k) - 1))
         step = (torch.rand(b, device=kp.device) * (limit + 1)).floor().long().clamp_max(limit)
+        delay = torch.zeros_like(step)
+        if cfg.train_max_delay:  # a late chunk: planned d more steps back, inside the episode and window
+            room = torch.minimum(history.clamp_min(0) - step, k - 1 - step).clamp(0, cfg.train_max_delay)
+            delay = (torch.rand(b, device=kp.device) * (room + 1)).floor().long().clamp_max(room)
+        age = step + delay
         rows = torch.arange(b, device=kp.device)
         if cfg.plan_feature in batch:  # the base's chunk planned at each frame (dcdp-precompute-plans)
             per_frame = self.plan_column(batch)
-            if per_frame.dim() != 4 or per_frame.shape[2] < horizon:
+            need = horizon + cfg.train_max_delay
+            if per_frame.dim() != 4 or per_frame.shape[2] < need:
                 raise ValueError(
-                    f"{cfg.plan_feature} must hold the base's chunk (>= {horizon} actions) at every frame "
-                    f"of the observation window, got shape {tuple(per_frame.shape[1:])}"
+                    f"{cfg.plan_feature} must hold the base's chunk (>= n_action_steps + train_max_delay = "
+                    f"{need} actions) at every frame of the observation window, got shape "
+                    f"{tuple(per_frame.shape[1:])}"
                 )
-            plan = norm(ACTION, per_frame[rows, k - 1 - step][:, :horizon])
+            cols = delay.unsqueeze(1) + torch.arange(horizon, device=kp.device)
+            plan = norm(ACTION, per_frame[rows, k - 1 - age][rows.unsqueeze(1), cols])
         else:  # the demonstration's own chunk from t-s
             cols = (horizon - 1 - step).unsqueeze(1) + torch.arange(horizon, device=kp.device)
             plan = actions[rows.unsqueeze(1), cols]
@@ -186,13 +198,13 @@ class CorrectionSamples:
             cfg.motion_static_fraction,
             device=kp.device,
         )
-        moved, rot, shift = move_window(kp.reshape(b, k, -1, 2), k - 1 - step, velocity, turn)
+        moved, rot, shift = move_window(kp.reshape(b, k, -1, 2), k - 1 - age, velocity, turn)
         batch[key] = norm(key, moved.reshape(kp.shape))
         if cfg.motion_label == "observed":  # the whole motion the moved keypoints show since plan time
-            rot, shift = rigid_fit_2d(moved[rows, k - 1 - step], moved[:, -1])
+            rot, shift = rigid_fit_2d(moved[rows, k - 1 - age], moved[:, -1])
         plan_s = plan[rows, step]
         moving = (velocity != 0).any(-1) | (turn != 0)
         carried = norm(ACTION, anchor_actions(norm(ACTION, plan_s, inverse=True), rot, shift))
         target = torch.where(moving.unsqueeze(-1), carried, plan_s)  # a still scene keeps the plan exactly
         _, valid = self.current_action(batch)
-        return CorrectionSample(batch, plan, step, target, valid, synthesised=True)
+        return CorrectionSample(batch, plan, step, age, target, valid, synthesised=True)
