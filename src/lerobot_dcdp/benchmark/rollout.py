@@ -82,6 +82,7 @@ def rollout(
     from lerobot.envs.utils import preprocess_observation
 
     from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
+    from lerobot_dcdp.lockstep import run_lockstep
 
     envs = [
         make_perturbed_env(
@@ -92,47 +93,36 @@ def rollout(
         )
         for _ in seeds
     ]
-    obs = [env.reset(seed=s)[0] for env, s in zip(envs, seeds, strict=True)]
-    n = len(seeds)
-    active = np.ones(n, dtype=bool)
-    success = np.zeros(n, dtype=bool)
-    max_reward = np.zeros(n)
-    steps = np.zeros(n, dtype=int)
-    frames: dict[int, list[np.ndarray]] = {
-        s: [envs[i].render()] for i, s in enumerate(seeds) if s in render_seeds
-    }
+    frames: dict[int, list[np.ndarray]] = {s: [] for s in seeds if s in render_seeds}
+    index = {i: s for i, s in enumerate(seeds) if s in frames}
     times: list[float] = []
     # the policy's own randomness (diffusion noise) is seeded per batch, as lerobot-eval --seed does:
     # the same command gives the same numbers
     torch.manual_seed(seeds[0])
     policy.reset()
-    for _ in range(max_steps):
+
+    def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
+        if not times:  # the first frame of each rendered episode, after its reset
+            for i, s in index.items():
+                frames[s].append(envs[i].render())
         batch = preprocess_observation(_stack_obs(obs))
         t0 = time.perf_counter()
-        batch = preprocessor(batch)
-        action = postprocessor(policy.select_action(batch))
+        action = postprocessor(policy.select_action(preprocessor(batch)))
         times.append((time.perf_counter() - t0) * 1e3)
-        action = action.cpu().numpy()
-        for i in np.flatnonzero(active):
-            o, r, term, trunc, info = envs[i].step(action[i])
-            obs[i] = o
-            steps[i] += 1
-            max_reward[i] = max(max_reward[i], float(r))
-            if seeds[i] in frames:
-                frames[seeds[i]].append(envs[i].render())
-            if info.get("is_success", False):
-                success[i] = True
-            if term or trunc or success[i]:
-                active[i] = False
-        if not active.any():
-            break
+        return action.cpu().numpy()
+
+    def on_step(i: int, obs: dict, reward: float, info: dict) -> None:
+        if i in index:
+            frames[index[i]].append(envs[i].render())
+
+    out = run_lockstep(envs, list(seeds), act, max_steps, on_step)
     for env in envs:
         env.close()
     return RolloutResult(
         seeds=list(seeds),
-        successes=success.tolist(),
-        max_rewards=max_reward.tolist(),
-        steps=steps.tolist(),
+        successes=out.successes,
+        max_rewards=out.max_rewards,
+        steps=out.steps,
         step_times_ms=times,
         frames=frames,
     )

@@ -285,25 +285,23 @@ def rollout_corrections(
     LeRobot ``EnvConfig``, default ``pusht_perturbed`` with keypoint observations: :func:`episode_env`)."""
     from lerobot.envs.utils import preprocess_observation
 
+    from lerobot_dcdp.lockstep import run_lockstep
+
     envs = [episode_env(env_config, sp, max_steps) for sp in specs]
-    obs = [env.reset(seed=s)[0] for env, s in zip(envs, seeds, strict=True)]
     n = len(seeds)
     anchor = policy.config.anchor_feature
     obs_keys = recorded_keys(policy)
     keys = ("obs", "anchor", "plan", "step", "exec", "reward", "success", "offset", "teach")
     cols = [{k: [] for k in keys} for _ in seeds]
-    active = np.ones(n, dtype=bool)
     torch.manual_seed(seeds[0])  # the base's sampling noise: the same command records the same data
     policy.reset()
     if online_teacher is not None:
         online_teacher.reset(n)
 
-    def anchor_of(o: dict) -> np.ndarray | None:
-        if not anchor:
-            return None
+    def anchor_of(o: dict) -> np.ndarray:
         return preprocess_observation({k: v[None] for k, v in o.items()})[anchor][0].numpy()
 
-    for _ in range(max_steps):
+    def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
         stacked = {k: np.stack([o[k] for o in obs]) for k in obs[0]}
         raw = preprocess_observation(stacked)
         missing = [k for k in obs_keys if k not in raw]
@@ -312,37 +310,33 @@ def rollout_corrections(
                 f"the env's observations give {sorted(raw)}, not {missing} that the policy reads: pick the "
                 "env's observation type that holds them (e.g. --env.obs_type=environment_state_agent_pos)"
             )
-        batch = pre(dict(raw))
-        action = post(policy.select_action(batch)).cpu().numpy()
+        action = post(policy.select_action(pre(dict(raw)))).cpu().numpy()
         taught = None if online_teacher is None else online_teacher(obs, raw, active)
         if taught is not None and teacher_drives:
             action = taught
         plan = post(policy.planned_chunk).cpu().numpy()
-        step = policy.last_step
         for i in np.flatnonzero(active):
             c = cols[i]
             c["obs"].append({k: raw[k][i].numpy().astype(np.float32) for k in obs_keys})
             if anchor:
                 c["anchor"].append(raw[anchor][i].numpy().astype(np.float32))
             c["plan"].append(plan[i].astype(np.float32))
-            c["step"].append(step)
+            c["step"].append(policy.last_step)
             c["exec"].append(action[i].astype(np.float32))
             if taught is not None:
                 c["teach"].append(taught[i].astype(np.float32))
-            o, r, term, trunc, info = envs[i].step(action[i])
-            obs[i] = o
-            c["reward"].append(float(r))
-            c["offset"].append(np.asarray(info.get("perturbation_offset", (0.0, 0.0)), dtype=np.float64))
-            c["success"].append(bool(info.get("is_success", False)))
-            if term or trunc or c["success"][-1]:
-                active[i] = False
-                if anchor:  # the observation after the last step
-                    c["anchor"].append(anchor_of(o).astype(np.float32))
-        if not active.any():
-            break
-    for i in np.flatnonzero(active):
-        if anchor:
-            cols[i]["anchor"].append(anchor_of(obs[i]).astype(np.float32))
+        return action
+
+    def on_step(i: int, o: dict, reward: float, info: dict) -> None:
+        c = cols[i]
+        c["reward"].append(reward)
+        c["offset"].append(np.asarray(info.get("perturbation_offset", (0.0, 0.0)), dtype=np.float64))
+        c["success"].append(bool(info.get("is_success", False)))
+
+    last = run_lockstep(envs, list(seeds), act, max_steps, on_step).obs
+    if anchor:  # the observation after each episode's last step
+        for i in range(n):
+            cols[i]["anchor"].append(anchor_of(last[i]).astype(np.float32))
     for env in envs:
         env.close()
     episodes = []
