@@ -9,7 +9,7 @@ $(STAMP): pyproject.toml
 	@test -n "$(PYTHON)" || { echo "python3.12 not found (pyenv install 3.12.1)"; exit 1; }
 	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/pip install -q --upgrade pip
-	$(VENV)/bin/pip install -q -e ".[test,fastumi,benchmark]"
+	$(VENV)/bin/pip install -q -e ".[test,fastumi,benchmark,async]"
 	# torchcodec cannot load without system FFmpeg here; LeRobot falls back to pyav (quietly, once removed)
 	$(VENV)/bin/pip uninstall -y -q torchcodec || true
 	touch $(STAMP)

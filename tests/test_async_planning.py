@@ -109,3 +109,68 @@ def test_async_planning_is_refused_where_every_step_replans(diffusion_base, demo
         make_dcdp_policy(diffusion_base, demo_root, planning="async", execution="closed_loop")
     with pytest.raises(ValueError, match="did you mean 'async'"):
         make_dcdp_policy(diffusion_base, demo_root, planning="asynch")
+
+
+class _ScriptedPlanner:
+    """A stand-in for a remote planner (``BackgroundPlanner``'s interface): chunk k is all ``k + 1``."""
+
+    def __init__(self, horizon: int) -> None:
+        self.horizon, self.submitted, self.job, self.cancels = horizon, [], None, 0
+
+    @property
+    def pending(self) -> bool:
+        return self.job is not None
+
+    @property
+    def t_obs(self):
+        return None if self.job is None else self.job[0]
+
+    def submit(self, t_obs, prepared, snapshot, length, context=None) -> None:
+        self.submitted.append(t_obs)
+        self.job = (t_obs, context)
+
+    def take(self, wait: bool):
+        from lerobot_dcdp.planner import PlannedChunk
+
+        t_obs, context = self.job
+        self.job = None
+        chunk = torch.full((1, self.horizon + 4, 2), float(len(self.submitted)))
+        return PlannedChunk(chunk, t_obs, context, 0.0)
+
+    def cancel(self) -> None:
+        self.job, self.cancels = None, self.cancels + 1
+
+    def close(self) -> None:
+        raise AssertionError("the policy must not close a planner it was handed")
+
+
+def test_a_remote_base_plans_every_chunk_and_its_weights_are_never_read(diffusion_base, demo_root, tmp_path):
+    """base_location='remote' (dcdp-robot-client): the base folder needs no weights; nothing runs until a
+    planner is attached; then the episode's first chunk too comes from it, ``lead`` steps ahead."""
+    import shutil
+
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+
+    trained = _policy(diffusion_base, demo_root, n_action_steps=4, execution="open_loop")
+    trained.save_pretrained(tmp_path / "corrector")
+    weightless = tmp_path / "base_config_only"
+    shutil.copytree(diffusion_base, weightless, ignore=shutil.ignore_patterns("model.safetensors"))
+    config = type(trained.config).from_pretrained(tmp_path / "corrector")
+    config.base_policy_path, config.planning, config.base_location = str(weightless), "async", "remote"
+    policy = DCDPPolicy.from_pretrained(tmp_path / "corrector", config=config).eval()
+    pre, _ = make_dcdp_pre_post_processors(policy.config)
+    observations = [pre(dict(o)) for o in env_observations(1, 10)]
+    with pytest.raises(ValueError, match="attach its planner"):
+        policy.select_action(dict(observations[0]))
+    planner = _ScriptedPlanner(4)
+    policy.attach_planner(planner, lead=2)
+    actions = torch.stack([policy.select_action(dict(o)) for o in observations])
+    # chunk 1 from tick 0; chunk 2 requested 2 ticks before chunk 1 ends (tick 2), used at tick 4 with its
+    # entries for ticks 2-3 skipped; chunk 3 requested at tick 6
+    assert planner.submitted == [0, 2, 6]
+    torch.testing.assert_close(actions[:, 0, 0], torch.tensor([1.0] * 4 + [2.0] * 4 + [3.0] * 2))
+    policy.reset()
+    assert planner.cancels >= 2  # attach and reset both drop a pending chunk
+    policy.close()  # leaves the attached planner to its owner
+    with pytest.raises(ValueError, match="planning=async"):
+        type(config)(base_policy_path="base", base_location="remote")

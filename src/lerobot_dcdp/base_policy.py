@@ -53,8 +53,14 @@ def portable_base_reference(ref: str, relative_to: str | Path | None, save_direc
     return os.path.relpath(Path(resolved).resolve(), Path(save_directory).resolve())
 
 
-def load_base_policy(ref: str, device: str | None, relative_to: str | Path | None = None) -> PreTrainedPolicy:
-    """Load a pretrained policy of any registered type, frozen and in eval mode."""
+def load_base_policy(
+    ref: str, device: str | None, relative_to: str | Path | None = None, weights: bool = True
+) -> PreTrainedPolicy:
+    """Load a pretrained policy of any registered type, frozen and in eval mode.
+
+    ``weights=False``: build it from its ``config.json`` alone (untrained weights, no pretrained backbone
+    download): what a corrector needs of a base that plans on another machine (its chunk lengths, inputs
+    and observation history), never its actions."""
     from lerobot.policies.factory import get_policy_class
 
     path = resolve_base_reference(ref, relative_to)
@@ -75,7 +81,13 @@ def load_base_policy(ref: str, device: str | None, relative_to: str | Path | Non
         ) from e
     if device:
         cfg.device = device
-    base = get_policy_class(cfg.type).from_pretrained(path, config=cfg)
+    if weights:
+        base = get_policy_class(cfg.type).from_pretrained(path, config=cfg)
+    else:
+        for field in ("pretrained_backbone_weights", "vision_backbone_weights"):
+            if hasattr(cfg, field):
+                setattr(cfg, field, None)
+        base = get_policy_class(cfg.type)(cfg)
     base.eval()
     for p in base.parameters():
         p.requires_grad_(False)

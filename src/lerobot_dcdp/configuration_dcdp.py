@@ -15,6 +15,7 @@ BACKBONES = ("auto", "mlp", "resnet18")
 KERNEL_CHOICES = ("auto", "on", "off")
 PLANNING_MODES = ("sync", "async")
 PLANNING_CLOCKS = ("wall", "steps")
+BASE_LOCATIONS = ("local", "remote")
 #: Execution modes that run one chunk for several ticks (the ones asynchronous planning applies to).
 CHUNK_MODES = ("dcdp", "open_loop", "object_anchored")
 MOTION_LABELS = ("observed", "added")
@@ -75,6 +76,11 @@ class DCDPConfig(PreTrainedConfig):
             benchmarks: reproducible): planning starts ``inference_delay`` ticks before the chunk ends and
             its chunk is used exactly ``inference_delay`` ticks after its observation (the tick waits for the
             worker if it is slower), the same actions as ``planning=sync`` with that ``inference_delay``.
+        base_location: ``local`` (default): the base's weights are loaded here and it plans here. ``remote``:
+            the base plans on another machine (``dcdp-robot-client`` with LeRobot's stock policy server):
+            only its ``config.json`` and processor files are read here (not its weights, so their hash is
+            not checked), and every chunk, an episode's first included, comes from the planner attached with
+            ``DCDPPolicy.attach_planner`` (``planning='async'``).
         te_weight: Weight of the newest prediction in ``temporal_ensemble`` (authors: 0.5).
         correction: How the corrector produces action s of a chunk. ``residual`` (default; ours, see
             docs/METHOD.md): ``a_s = plan_s + delta(z, plan_s, F_{t+s}, change since plan time, e_s)``
@@ -159,6 +165,7 @@ class DCDPConfig(PreTrainedConfig):
     inference_delay: int = 0
     planning: str = "sync"
     planning_clock: str = "wall"
+    base_location: str = "local"
     te_weight: float = 0.5
     correction: str = "residual"
     anchor_feature: str | None = None
@@ -226,6 +233,11 @@ class DCDPConfig(PreTrainedConfig):
         _check_choice("execution", self.execution, EXECUTION_MODES)
         _check_choice("planning", self.planning, PLANNING_MODES)
         _check_choice("planning_clock", self.planning_clock, PLANNING_CLOCKS)
+        _check_choice("base_location", self.base_location, BASE_LOCATIONS)
+        if self.base_location == "remote" and self.planning != "async":
+            raise ValueError(
+                "base_location='remote' plans every chunk on the remote base: use --policy.planning=async"
+            )
         if self.planning == "async" and self.execution not in CHUNK_MODES:
             raise ValueError(
                 f"planning='async' applies to the chunk modes {CHUNK_MODES}; execution={self.execution!r} "

@@ -65,7 +65,12 @@ class DCDPPolicy(PreTrainedPolicy):
     def __init__(self, config: DCDPConfig, dataset_stats: dict | None = None, dataset_meta=None, **kwargs):
         super().__init__(config)
         self.config = config
-        base = load_base_policy(config.base_policy_path, config.device, config.pretrained_path)
+        base = load_base_policy(
+            config.base_policy_path,
+            config.device,
+            config.pretrained_path,
+            weights=config.base_location == "local",
+        )
         object.__setattr__(self, "_base", base)  # not a submodule: out of state_dict/parameters/train()
         self._adopt_base(base)
         self._source: ChunkSource = make_chunk_source(base)
@@ -137,8 +142,10 @@ class DCDPPolicy(PreTrainedPolicy):
     def _adopt_base(self, base: PreTrainedPolicy) -> None:
         """Check ``base`` is the one the corrector was trained against (weights hash, type); record it."""
         config = self.config
-        digest = state_dict_sha256(base.state_dict())
-        if config.base_weights_sha256 is None:
+        digest = state_dict_sha256(base.state_dict()) if config.base_location == "local" else None
+        if digest is None:  # the weights are on the remote base's machine
+            pass
+        elif config.base_weights_sha256 is None:
             config.base_weights_sha256 = digest
         elif config.base_weights_sha256 != digest:
             raise BaseMismatchError(
@@ -264,6 +271,11 @@ class DCDPPolicy(PreTrainedPolicy):
     def select_action(self, batch: dict[str, Tensor]) -> Tensor:
         """One action (B, A) per environment for the current step (normalised; the post-processor maps it)."""
         self.check(batch, self.state)
+        if self.config.base_location == "remote" and not self._async.attached:
+            raise ValueError(
+                "base_location='remote': the base plans on another machine; attach its planner first "
+                "(DCDPPolicy.attach_planner, as dcdp-robot-client does)"
+            )
         mode = self.modes[self.config.execution]
         planning = self._async if self.config.planning == "async" else self._sync
         return planning.act(self.state, batch, mode)
@@ -286,6 +298,15 @@ class DCDPPolicy(PreTrainedPolicy):
             return self.corrector.query_chunk(state, chunk)
         finally:
             self.source.restore(queues)
+
+    def attach_planner(self, planner, lead: int | None = None) -> None:
+        """Plan every chunk with ``planner`` (``planning='async'``), e.g. a ``RemotePlanner`` whose base runs
+        in LeRobot's policy server; ``lead``: request the next chunk this many steps before the current one
+        ends (default: the planning clock's own lead). The caller closes the planner."""
+        if self.config.planning != "async":
+            raise ValueError("attach_planner needs --policy.planning=async")
+        self._async.attach(planner, lead)
+        self.reset()
 
     def close(self) -> None:
         """Stop the asynchronous planner's worker thread (``planning='async'``); the policy stays usable."""

@@ -103,7 +103,15 @@ class AsyncPlanning:
         self.config = config
         self.source = source
         self.anchor = anchor
-        self.planner: BackgroundPlanner | None = None  # created on first use
+        self.planner: BackgroundPlanner | None = None  # created on first use, or attached
+        self.attached = False  # the planner was handed in (attach): it plans every chunk, the first too
+        self.fixed_lead: int | None = None
+
+    def attach(self, planner, lead: int | None = None) -> None:
+        """Plan every chunk with ``planner`` (``BackgroundPlanner``'s interface), ``lead`` steps ahead."""
+        if lead is not None and not 1 <= lead <= self.config.n_action_steps:
+            raise ValueError(f"planning lead must be in [1, {self.config.n_action_steps}] steps, got {lead}")
+        self.planner, self.attached, self.fixed_lead = planner, True, lead
 
     def act(self, state: EpisodeState, batch: dict[str, Tensor], mode: ExecutionMode) -> Tensor:
         """This step's action (B, A), base-normalised."""
@@ -126,7 +134,11 @@ class AsyncPlanning:
             context = (state.rep, self.anchor.points(batch) if mode.anchored else None)
             if state.chunk is None:  # an episode's first chunk: nothing to execute yet, planned on this step
                 started = time.perf_counter()
-                chunk = self.source.chunk(prepared, horizon)
+                if self.attached:
+                    self.planner.submit(state.t, prepared, None, self.source.max_length, context)
+                    chunk = self.planner.take(wait=True).chunk[:, :horizon]
+                else:
+                    chunk = self.source.chunk(prepared, horizon)
                 state.plan_s = _smoothed(state.plan_s, time.perf_counter() - started)
                 self._begin(state, mode, chunk, context)
             else:
@@ -169,6 +181,8 @@ class AsyncPlanning:
     def lead(self, state: EpisodeState) -> int:
         """Steps before the chunk's end at which the next one is planned (``DCDPConfig.planning_clock``)."""
         cfg = self.config
+        if self.fixed_lead is not None:
+            return self.fixed_lead
         if cfg.planning_clock == "steps":
             return cfg.inference_delay
         if not state.plan_s or not state.tick_s:
@@ -181,8 +195,8 @@ class AsyncPlanning:
             self.planner.cancel()
 
     def close(self) -> None:
-        """Stop the worker thread; planning restarts it on demand."""
-        if self.planner is not None:
+        """Stop the worker thread; planning restarts it on demand (an attached planner is its owner's)."""
+        if self.planner is not None and not self.attached:
             self.planner.close()
             self.planner = None
 
