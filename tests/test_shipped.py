@@ -86,16 +86,17 @@ def test_every_config_parses(path: Path) -> None:
 
 @pytest.mark.parametrize("corrector", CORRECTORS, ids=lambda p: p.name)
 def test_shipped_checkpoint_loads_unchanged(corrector, tmp_path) -> None:
-    """The shipped files keep the key layout they were saved with (before the corrector's parts moved under
-    ``corrector.``): every stored tensor lands in its module, the corrector hash is the file's, and a
-    re-saved copy (new layout) gives the same actions."""
+    """Every shipped file loads in the key layout it was saved with (with or without the ``corrector.``
+    prefix): every stored tensor lands in its module, the corrector hash is the file's, and a re-saved copy
+    (current layout) gives the same actions."""
     from safetensors.torch import load_file
 
     from lerobot_dcdp.correction import state_dict_sha256
     from lerobot_dcdp.modeling_dcdp import DCDPPolicy
     from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
 
-    stored = load_file(corrector / "model.safetensors")
+    # older shipped files keep the layout they were saved with (no ``corrector.`` prefix); newer ones have it
+    stored = {k.removeprefix("corrector."): v for k, v in load_file(corrector / "model.safetensors").items()}
     policy = DCDPPolicy.from_pretrained(corrector).eval()
     loaded = policy.corrector.state_dict()
     assert set(stored) == set(loaded), "the shipped file and the corrector disagree on names"
