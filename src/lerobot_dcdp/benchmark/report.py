@@ -1,5 +1,5 @@
-"""Tables shaped like the paper's Tables 1-2, the score-vs-drift plot and docs/RESULTS.md, from the
-benchmark's JSON."""
+"""Tables shaped like the paper's Tables 1-2, the score- and success-vs-drift plots and docs/RESULTS.md, from
+the benchmark's JSON."""
 
 from __future__ import annotations
 
@@ -19,9 +19,29 @@ COLORS = {
     "object_anchored": "C4",
     "dcdp": "C3",
 }
+#: The ceiling row (the privileged scripted expert, ``--methods expert``): cells ``expert|expert|<cond>``,
+#: run once per condition (no corrector, no base) and shown in every model's table.
+EXPERT = "expert"
+EXPERT_COLOR = "k"
 KINDS = ("constant", "random")
-MAGNITUDES = (0.5, 1.0, 1.5, 2.0, 2.5)
+MAGNITUDES = (0.5, 0.75, 1.0, 1.5, 2.0, 2.5)
 CONDITION_ORDER = ["static"] + [f"{k}_{m}" for m in MAGNITUDES for k in KINDS]
+#: Issue 22: drifts where an episode can still succeed (DCDP success >= open loop + 15 points there) ...
+ATTAINABLE_MAX_DRIFT = 1.0
+ATTAINABLE_GAIN_POINTS = 15.0
+#: ... and no harm anywhere (DCDP >= open loop - 4 success points and - 0.01 score).
+NO_HARM_POINTS, NO_HARM_SCORE = -4.0, -0.01
+
+
+def expert_name(cell: dict | None = None) -> str:
+    """The ceiling row's label (its chunk length read from the cell when given)."""
+    chunk = (cell or {}).get("identity", {}).get("chunk", 8)
+    return f"Privileged expert (true state, {chunk}-step chunks): ceiling, not a policy"
+
+
+def magnitude(condition: str) -> float:
+    """Drift in px per control step of a condition name (``static``: 0)."""
+    return 0.0 if condition == "static" else float(condition.split("_")[1])
 
 
 def _conditions(cells: dict, label: str) -> list[str]:
@@ -53,7 +73,8 @@ def fmt(cell: dict | None) -> str:
 
 
 def table1(results: dict, label: str) -> str:
-    """Score ± standard error (success rate ± standard error) per method and condition."""
+    """Score ± standard error (success rate ± standard error) per method and condition; the privileged
+    expert's row (when its cells exist) last, labelled as a ceiling."""
     cells = results["cells"]
     conds = _conditions(cells, label)
     lines = ["| method | " + " | ".join(conds) + " |", "|" + "---|" * (len(conds) + 1)]
@@ -61,6 +82,86 @@ def table1(results: dict, label: str) -> str:
         row = [fmt(cells.get(f"{label}|{m}|{c}")) for c in conds]
         if any(r != "-" for r in row):
             lines.append(f"| {name} | " + " | ".join(row) + " |")
+    experts = [cells.get(cell_key(EXPERT, EXPERT, c)) for c in conds]
+    if any(experts):
+        first = next(e for e in experts if e)
+        row = [
+            fmt(e) + ("" if not e or e["episodes"] == first["episodes"] else f", n={e['episodes']}")
+            for e in experts
+        ]
+        lines.append(f"| *{expert_name(first)}* | " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def table_expert(results: dict) -> str:
+    """The privileged expert's cells as one row (score ± s.e. (success ± s.e.), episodes); empty if none."""
+    cells = results["cells"]
+    conds = [c for c in CONDITION_ORDER if cell_key(EXPERT, EXPERT, c) in cells]
+    if not conds:
+        return ""
+    row = [cells[cell_key(EXPERT, EXPERT, c)] for c in conds]
+    return "\n".join(
+        [
+            "| row | " + " | ".join(conds) + " |",
+            "|" + "---|" * (len(conds) + 1),
+            f"| *{expert_name(row[0])}* | " + " | ".join(fmt(c) for c in row) + " |",
+            "| episodes | " + " | ".join(str(c["episodes"]) for c in row) + " |",
+        ]
+    )
+
+
+def paired_diff(new: dict, old: dict, key: str) -> tuple[float, float]:
+    """Mean of ``new - old`` over the episodes (``key``: ``max_rewards`` or ``successes``) and its standard
+    error: paired over the seeds when both cells ran the same seeds, else from the two cells' own s.e."""
+    import numpy as np
+
+    a = np.asarray(new.get(key) or [], dtype=float)
+    b = np.asarray(old.get(key) or [], dtype=float)
+    if len(a) == len(b) > 1 and new.get("seeds") == old.get("seeds"):
+        d = a - b
+        return float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))
+    if key == "successes":
+        return new["success_rate"] - old["success_rate"], (success_se(new) ** 2 + success_se(old) ** 2) ** 0.5
+    return new["score"] - old["score"], (score_se(new) ** 2 + score_se(old) ** 2) ** 0.5
+
+
+def goals_issue22(results: dict, label: str) -> str:
+    """Issue 22's goals, DCDP against open loop on the same seeds, per condition: no harm anywhere (success
+    >= -4 points, score >= -0.01) and, where success is attainable (constant / random drift up to 1.0 px per
+    step), success >= +15 points. Empty when no condition up to 1.0 px/step has both rows."""
+    cells = results["cells"]
+    conds = [
+        c
+        for c in _conditions(cells, label)
+        if cells.get(cell_key(label, "dcdp", c)) and cells.get(cell_key(label, "open_loop", c))
+    ]
+    if not any(magnitude(c) <= ATTAINABLE_MAX_DRIFT for c in conds):
+        return ""
+    lines = [
+        "DCDP - open loop on the same seeds, ± the paired standard error. Margin = difference - goal "
+        "(>= 0: met).",
+        "",
+        "| condition | open loop success | DCDP success | Δ success (points) | Δ score | no harm: "
+        f"Δ success >= {NO_HARM_POINTS:+.0f} | no harm: Δ score >= {NO_HARM_SCORE:+.2f} | "
+        f"attainable: Δ success >= +{ATTAINABLE_GAIN_POINTS:.0f} |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+
+    def verdict(margin: float, digits: int) -> str:
+        return f"{'met' if margin >= 0 else '**missed**'} ({margin:+.{digits}f})"
+
+    for c in conds:
+        d, o = cells[cell_key(label, "dcdp", c)], cells[cell_key(label, "open_loop", c)]
+        ds, ds_se = paired_diff(d, o, "successes")
+        dr, dr_se = paired_diff(d, o, "max_rewards")
+        attain = (
+            verdict(100 * ds - ATTAINABLE_GAIN_POINTS, 0) if 0 < magnitude(c) <= ATTAINABLE_MAX_DRIFT else "-"
+        )
+        lines.append(
+            f"| {c} | {100 * o['success_rate']:.0f} % | {100 * d['success_rate']:.0f} % | "
+            f"{100 * ds:+.0f} ± {100 * ds_se:.0f} | {dr:+.3f} ± {dr_se:.3f} | "
+            f"{verdict(100 * ds - NO_HARM_POINTS, 0)} | {verdict(dr - NO_HARM_SCORE, 3)} | {attain} |"
+        )
     return "\n".join(lines)
 
 
@@ -126,16 +227,24 @@ def _cell(cells: dict, label: str, method: str, condition: str, delay: int) -> d
     return cells.get(cell_key(label, method, condition, delay))
 
 
-def _score_line(ax, pts: list[tuple[float, dict]], method: str) -> None:
-    """One method's score ± s.e. over (x, cell) points."""
+def _score_line(ax, pts: list[tuple[float, dict]], method: str, metric: str = "score") -> None:
+    """One method's score ± s.e. (``metric="success"``: success rate in % ± s.e.) over (x, cell) points;
+    ``method`` ``expert`` draws the ceiling row (black, dashed)."""
+    if metric == "success":
+        y = [100 * cell["success_rate"] for _, cell in pts]
+        err = [100 * success_se(cell) for _, cell in pts]
+    else:
+        y, err = [cell["score"] for _, cell in pts], [score_se(cell) for _, cell in pts]
+    expert = method == EXPERT
     ax.errorbar(
         [x for x, _ in pts],
-        [cell["score"] for _, cell in pts],
-        yerr=[score_se(cell) for _, cell in pts],
-        marker="o",
+        y,
+        yerr=err,
+        marker="s" if expert else "o",
+        linestyle="--" if expert else "-",
         capsize=3,
-        label=METHOD_NAMES[method],
-        color=COLORS[method],
+        label=expert_name(pts[0][1]) if expert else METHOD_NAMES[method],
+        color=EXPERT_COLOR if expert else COLORS[method],
     )
 
 
@@ -202,8 +311,12 @@ def plot_delay(results: dict, path: Path) -> bool:
     return True
 
 
-def plot(results: dict, path: Path) -> None:
-    """Score (± standard error) vs drift magnitude, per method, for constant and random drift."""
+def plot(results: dict, path: Path, metric: str = "score") -> None:
+    """Score (± standard error) vs drift magnitude, per method, for constant and random drift; with
+    ``metric="success"`` the success rate (%, ± its binomial s.e.). The privileged expert's cells, when
+    present, are drawn in every model's panels as the ceiling."""
+    if metric not in ("score", "success"):
+        raise ValueError(f"metric must be 'score' or 'success', got {metric!r}")
     try:
         import matplotlib
     except ImportError as err:  # an optional dependency
@@ -214,22 +327,28 @@ def plot(results: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    labels = sorted({c["model"] for c in results["cells"].values()})
+    cells = results["cells"]
+    labels = sorted({c["model"] for c in cells.values()} - {EXPERT}) or [EXPERT]
+    top = max([magnitude(c["condition"]) for c in cells.values()] + [MAGNITUDES[0]])
     fig, axes = plt.subplots(len(labels), 2, figsize=(11, 3.8 * len(labels)), squeeze=False)
     for row, label in enumerate(labels):
         for col, kind in enumerate(KINDS):
             ax = axes[row][col]
             conds = [("static", 0.0)] + [(f"{kind}_{m}", m) for m in MAGNITUDES]
-            for m in METHOD_NAMES:
-                pts = [(x, results["cells"].get(cell_key(label, m, c))) for c, x in conds]
+            for who, m in [(label, m) for m in METHOD_NAMES] + [(EXPERT, EXPERT)]:
+                pts = [(x, cells.get(cell_key(who, m, c))) for c, x in conds]
                 pts = [(x, cell) for x, cell in pts if cell]
                 if pts:
-                    _score_line(ax, pts, m)
+                    _score_line(ax, pts, m, metric)
             ax.set_title(f"{label}, {kind} drift")
             ax.set_xlabel("block drift (px / control step)")
-            ax.set_ylabel("score (avg max reward)")
-            ax.set_ylim(0, 1.02)
-            ax.set_xlim(-0.1, 2.6)
+            if metric == "success":
+                ax.set_ylabel("success rate (%)")
+                ax.set_ylim(0, 102)
+            else:
+                ax.set_ylabel("score (avg max reward)")
+                ax.set_ylim(0, 1.02)
+            ax.set_xlim(-0.1, top + 0.1)
             ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=8)
     fig.tight_layout()
@@ -239,8 +358,11 @@ def plot(results: dict, path: Path) -> None:
 
 
 def protocol(results: dict) -> str:
-    """The protocol line, written from what the cells actually ran."""
-    cells = list(results["cells"].values())
+    """The protocol line, written from what the cells actually ran (the expert's cells: their own line)."""
+    cells = [c for c in results["cells"].values() if c["model"] != EXPERT]
+    experts = [c for c in results["cells"].values() if c["model"] == EXPERT]
+    if not cells:
+        cells = experts
     if not cells:
         return "- protocol: (no cells)"
     eps = sorted({c["episodes"] for c in cells})
@@ -254,7 +376,29 @@ def protocol(results: dict) -> str:
         "policy noise "
         "seeded per batch; score = mean over episodes of max_t clip(coverage_t / 0.95, 0, 1) "
         "(LeRobot's `avg_max_reward`), ± its standard error; success = coverage > 0.95 at some step."
+        + (expert_protocol(experts) if experts else "")
     )
+
+
+def expert_protocol(experts: list[dict]) -> str:
+    """What the expert row is, and how many episodes its cells ran."""
+    eps = sorted({c["episodes"] for c in experts})
+    chunk = experts[0].get("identity", {}).get("chunk", 8)
+    return (
+        f"\n- ceiling row (`{EXPERT}`): the privileged scripted expert (`lerobot_dcdp.pusht.expert`) "
+        "reads the simulator's true state (block pose, agent position and velocity), plans a push "
+        f"primitive on an exact copy of the static physics, executes {chunk} steps of it and plans again; "
+        "it does not know the drift and has no learned part. "
+        f"{'/'.join(map(str, eps))} episodes per cell, same seeds and step limit, run once per condition "
+        f"(not per base). A reference for what a chunked controller ({chunk} steps) with perfect state "
+        "reaches, not a policy under test."
+    )
+
+
+def success_plot_path(json_path: Path) -> Path:
+    """The success-vs-drift plot beside a results file (named like :func:`plot_paths`' plots)."""
+    prefix = "" if json_path.stem == "benchmark" else f"{json_path.stem}_"
+    return json_path.parent / f"{prefix}success_vs_drift.png"
 
 
 def plot_paths(json_path: Path) -> tuple[Path, Path]:
@@ -264,9 +408,23 @@ def plot_paths(json_path: Path) -> tuple[Path, Path]:
     return json_path.parent / f"{prefix}score_vs_drift.png", json_path.parent / f"{prefix}score_vs_delay.png"
 
 
+def shown_path(path: str) -> str:
+    """A model path as the report shows it: relative to the source checkout when it lies inside it (the
+    shipped defaults are absolute paths), else as given."""
+    p = Path(path)
+    if not p.is_absolute():
+        return path
+    try:
+        return str(p.resolve().relative_to(Path(__file__).resolve().parents[3]))
+    except ValueError:
+        return path
+
+
 def write_report(results: dict, report: Path, json_path: Path) -> None:
     plot_path, delay_path = plot_paths(json_path)
+    success_path = success_plot_path(json_path)
     plot(results, plot_path)
+    plot(results, success_path, metric="success")
     has_delay = plot_delay(results, delay_path)
     m = results.get("machine", {})
     parts = [
@@ -280,9 +438,20 @@ def write_report(results: dict, report: Path, json_path: Path) -> None:
         f"({m.get('torch_threads', '?')} thread), Python {m.get('python', '?')}, no GPU",
         f"- git commit: `{results.get('git_commit', '?')}`",
         protocol(results),
-        f"- raw numbers: `{json_path}`; plot: `{plot_path}`",
+        f"- raw numbers: `{json_path}`; plots: `{plot_path}` (score), `{success_path}` (success)",
         "",
     ]
+    ceiling = table_expert(results)
+    if ceiling:
+        parts += [
+            "## Ceiling: the privileged scripted expert",
+            "",
+            "Not a policy under test: it reads the simulator's true state (see the protocol above). "
+            "Its row is repeated, in italics, at the foot of every model's Table 1.",
+            "",
+            ceiling,
+            "",
+        ]
     for label, ident in results.get("models", {}).items():
         cells = [c for c in results["cells"].values() if c["model"] == label]
         n = cells[0]["episodes"] if cells else "?"
@@ -291,7 +460,7 @@ def write_report(results: dict, report: Path, json_path: Path) -> None:
             "",
             f"Base `{ident['base']}` ({ident['base_type']}, "
             f"weights sha256 `{ident['base_weights_sha256'][:12]}`), "
-            f"corrector `{ident['corrector']}` ({ident['corrector_params']:,} parameters, sha256 "
+            f"corrector `{shown_path(ident['corrector'])}` ({ident['corrector_params']:,} parameters, sha256 "
             f"`{ident['corrector_sha256'][:12]}`), {n} episodes per cell.",
             "",
             "### Table 1: score ± s.e. (success rate ± s.e.)",
@@ -307,6 +476,9 @@ def write_report(results: dict, report: Path, json_path: Path) -> None:
             gaps(results, label) or "(not enough cells)",
             "",
         ]
+        mild = goals_issue22(results, label)
+        if mild:
+            parts += ["### Issue 22 goals: no harm anywhere, success where it is attainable", "", mild, ""]
         delayed = table_delay(results, label)
         if delayed:
             parts += [
@@ -318,7 +490,12 @@ def write_report(results: dict, report: Path, json_path: Path) -> None:
                 delayed,
                 "",
             ]
-    parts += [f"![score vs drift]({Path('..') / plot_path})", ""]
+    parts += [
+        "| score vs drift | success vs drift |",
+        "|---|---|",
+        f"| ![score vs drift]({Path('..') / plot_path}) | ![success vs drift]({Path('..') / success_path}) |",
+        "",
+    ]
     if has_delay:
         parts += [f"![score vs delay]({Path('..') / delay_path})", ""]
     report.parent.mkdir(parents=True, exist_ok=True)

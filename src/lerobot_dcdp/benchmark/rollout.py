@@ -31,6 +31,8 @@ CONDITIONS = [
     Condition("static"),
     Condition("constant_0.5", "constant", 0.5),
     Condition("random_0.5", "random", 0.5),
+    Condition("constant_0.75", "constant", 0.75),
+    Condition("random_0.75", "random", 0.75),
     Condition("constant_1.0", "constant", 1.0),
     Condition("random_1.0", "random", 1.0),
     Condition("constant_1.5", "constant", 1.5),
@@ -40,6 +42,12 @@ CONDITIONS = [
     Condition("constant_2.5", "constant", 2.5),
     Condition("random_2.5", "random", 2.5),
 ]
+#: The main protocol's conditions (``dcdp-benchmark``'s default; 0.75 px/step belongs to the mild protocol).
+MAIN_CONDITIONS = [c.name for c in CONDITIONS if c.magnitude != 0.75]
+#: The mild protocol (issue 22): at rest and the drifts where an episode can still succeed.
+MILD_CONDITIONS = ["static"] + [f"{k}_{m}" for m in (0.5, 0.75, 1.0) for k in ("constant", "random")]
+#: Steps of each plan the privileged expert executes before it re-plans (the bases' chunk length H).
+EXPERT_CHUNK = 8
 
 
 @dataclass
@@ -125,4 +133,89 @@ def rollout(
         steps=out.steps,
         step_times_ms=times,
         frames=frames,
+    )
+
+
+def expert_identity(chunk: int = EXPERT_CHUNK) -> dict:
+    """What an expert cell was computed with (its reuse key in the results file)."""
+    from dataclasses import asdict
+
+    from lerobot_dcdp.pusht.expert import ExpertConfig
+
+    cfg = asdict(ExpertConfig(max_exec=chunk))
+    cfg.pop("contacts")
+    return {
+        "expert": "lerobot_dcdp.pusht.expert.ScriptedExpert",
+        "privileged": "reads the simulator's true state and re-plans on an exact copy of its physics",
+        "chunk": chunk,
+        "config": {k: list(v) if isinstance(v, tuple) else v for k, v in cfg.items()},
+    }
+
+
+def expert_rollout(
+    condition: Condition,
+    seeds: list[int],
+    max_steps: int = 300,
+    chunk: int = EXPERT_CHUNK,
+    env_kwargs: dict | None = None,
+) -> RolloutResult:
+    """The privileged scripted expert (:class:`~lerobot_dcdp.pusht.expert.ScriptedExpert`) on each seed.
+
+    The expert reads the simulator's true state (block pose and velocities, agent position and velocity),
+    plans a push primitive on an exact copy of the physics, executes at most ``chunk`` steps of it and
+    plans again from the state it reached: a chunked policy with a perfect model of the static world and no
+    knowledge of the drift. It is the ceiling row of the benchmark, not a deployable policy. Episodes end
+    as in :func:`rollout` (success, or ``max_steps``); the expert's RNG (used only to escape when no push
+    improves the pose) is seeded with the episode seed.
+
+    Args:
+        condition: The perturbation.
+        seeds: One episode per seed.
+        max_steps: Step limit of an episode.
+        chunk: Steps of each plan executed before re-planning.
+        env_kwargs: Overrides of the condition's env arguments.
+
+    Returns:
+        Per-episode results; ``step_times_ms`` holds each episode's planning time per control step.
+    """
+    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
+    from lerobot_dcdp.pusht.expert import ExpertConfig, ScriptedExpert
+
+    if chunk < 1:
+        raise ValueError(f"the expert's chunk must be >= 1 step, got {chunk}")
+    from lerobot_dcdp.lockstep import run_lockstep
+
+    envs = [
+        make_perturbed_env(
+            obs_type="environment_state_agent_pos",
+            max_episode_steps=max_steps,
+            **{**condition.env_kwargs(), **(env_kwargs or {})},
+        )
+        for _ in seeds
+    ]
+    experts = [ScriptedExpert(ExpertConfig(max_exec=chunk), seed=seed) for seed in seeds]
+    queues: list[list] = [[] for _ in seeds]  # each expert's plan still to execute
+    prev: list[np.ndarray | None] = [None] * len(seeds)  # each env's last target (the agent at reset)
+    planning = np.zeros(len(seeds))
+
+    def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(seeds), 2))
+        for i in np.flatnonzero(active):
+            if prev[i] is None:
+                prev[i] = np.array(envs[i].unwrapped.agent.position, dtype=float)
+            if not queues[i]:
+                t0 = time.perf_counter()
+                queues[i] = list(experts[i].next_actions(envs[i], prev[i]))
+                planning[i] += time.perf_counter() - t0
+            prev[i] = np.asarray(queues[i].pop(0), dtype=float)
+            out[i] = prev[i]
+        return out
+
+    result = run_lockstep(envs, list(seeds), act, max_steps)
+    for env in envs:
+        env.close()
+    successes, max_rewards, steps = result.successes, result.max_rewards, result.steps
+    times = [1e3 * p / max(n, 1) for p, n in zip(planning, steps, strict=True)]
+    return RolloutResult(
+        seeds=list(seeds), successes=successes, max_rewards=max_rewards, steps=steps, step_times_ms=times
     )

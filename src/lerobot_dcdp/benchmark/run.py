@@ -8,6 +8,13 @@ and ``dcdp`` (H = 8) on static PushT and under constant / random block drift of 
 Seeds 100000.., 300 steps max, an episode ends on success (coverage > 0.95). Writes ``results/benchmark.json``
 (finished cells are kept and not recomputed), the per-step latency at batch 1, a plot, side-by-side videos
 and ``docs/RESULTS.md``.
+
+``--protocol mild`` (issue 22) is the protocol where an episode can still succeed: static and constant /
+random drift of 0.5, 0.75 and 1.0 px per step, 100 episodes per cell, the demonstrations-only correctors
+with open loop, object anchoring and DCDP, plus the ``expert`` row (the privileged scripted expert executing
+8-step chunks, a ceiling), into its own ``results/benchmark_mild.json`` and ``docs/RESULTS_MILD.md``. Any
+flag given explicitly overrides the protocol's value. A stored cell of another episode count is never
+replaced without ``--force``.
 """
 
 from __future__ import annotations
@@ -20,12 +27,13 @@ import platform
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from lerobot_dcdp.benchmark import shipped_model
-from lerobot_dcdp.benchmark.report import cell_key
+from lerobot_dcdp.benchmark.report import EXPERT, cell_key
 
 METHODS = ["open_loop", "closed_loop", "temporal_ensemble", "object_anchored", "dcdp"]
 DEFAULT_MODELS = {
@@ -105,56 +113,161 @@ def set_mode(policy, method: str, delay: int = 0) -> None:
     policy.reset()
 
 
+def protocols() -> dict[str, dict]:
+    """The named protocols: the defaults ``--protocol`` fills in for every flag not given explicitly."""
+    from lerobot_dcdp.benchmark.rollout import MAIN_CONDITIONS, MILD_CONDITIONS
+
+    return {
+        "main": {
+            "models": None,  # DEFAULT_MODELS, with DEFAULT_METHODS
+            "methods": METHODS,
+            "conditions": MAIN_CONDITIONS,
+            "episodes": 50,
+            "latency_steps": 300,
+            "videos": 2,
+            "out": "results/benchmark.json",
+            "report": "docs/RESULTS.md",
+        },
+        "mild": {
+            "models": {k: DEFAULT_MODELS[k] for k in ("diffusion_demos", "act_demos")},
+            "methods": ["open_loop", "object_anchored", "dcdp", EXPERT],
+            "conditions": MILD_CONDITIONS,
+            "episodes": 100,
+            "latency_steps": 0,
+            "videos": 0,
+            "out": "results/benchmark_mild.json",
+            "report": "docs/RESULTS_MILD.md",
+        },
+    }
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line, with ``--protocol``'s values for the flags not given.
+
+    Raises:
+        SystemExit: on a bad flag (argparse's message).
+    """
+    from lerobot_dcdp.benchmark.rollout import CONDITIONS, EXPERT_CHUNK
+
+    presets = protocols()
+    p = argparse.ArgumentParser(prog="dcdp-benchmark", description=__doc__.splitlines()[0])
+    p.add_argument(
+        "--protocol",
+        choices=sorted(presets),
+        default="main",
+        help="main: 50 episodes, every drift (default); mild: issue 22's 100 episodes at 0-1 px/step "
+        "(own results file and report)",
+    )
+    p.add_argument(
+        "--model",
+        action="append",
+        default=None,
+        metavar="LABEL=DIR",
+        help="a corrector checkpoint to benchmark (repeatable); default: the protocol's shipped ones",
+    )
+    p.add_argument(
+        "--methods",
+        nargs="+",
+        default=None,
+        choices=METHODS + [EXPERT],
+        help=f"'{EXPERT}': the privileged scripted expert (true state, chunks of --expert-chunk), once per "
+        "condition",
+    )
+    p.add_argument("--conditions", nargs="+", default=None, choices=[c.name for c in CONDITIONS])
+    p.add_argument(
+        "--delays", nargs="+", type=int, default=[0], help="inference delays d (control steps) to run"
+    )
+    p.add_argument("--episodes", type=int, default=None, help="per cell (main: 50, mild: 100)")
+    p.add_argument("--expert-episodes", type=int, default=None, help="per expert cell (default: --episodes)")
+    p.add_argument("--expert-chunk", type=int, default=EXPERT_CHUNK, help="steps the expert runs per plan")
+    p.add_argument("--seed-start", type=int, default=100_000)
+    p.add_argument("--max-steps", type=int, default=300)
+    p.add_argument("--batch-size", type=int, default=50, help="envs rolled out together")
+    p.add_argument("--latency-steps", type=int, default=None, help="batch-1 steps timed per method (0: skip)")
+    p.add_argument("--latency-rounds", type=int, default=10, help="episodes per method, interleaved")
+    p.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    p.add_argument("--videos", type=int, default=None, help="side-by-side open_loop|dcdp videos to render")
+    p.add_argument("--out", default=None, help="results file (main: results/benchmark.json)")
+    p.add_argument("--report", default=None, help="generated report (main: docs/RESULTS.md)")
+    p.add_argument("--force", action="store_true", help="recompute finished cells (and replace any cell)")
+    a = p.parse_args(argv)
+    preset = presets[a.protocol]
+    for key in ("methods", "conditions", "episodes", "latency_steps", "videos", "out", "report"):
+        if getattr(a, key) is None:
+            setattr(a, key, preset[key])
+    if a.expert_episodes is None:
+        a.expert_episodes = a.episodes
+    for key in ("episodes", "expert_episodes", "expert_chunk"):
+        if getattr(a, key) < 1:
+            p.error(f"--{key.replace('_', '-')} must be >= 1")
+    a.models = (
+        dict(m.split("=", 1) for m in a.model)
+        if a.model
+        else {k: v for k, v in (preset["models"] or DEFAULT_MODELS).items() if Path(v).is_dir()}
+    )
+    # explicit correctors (or a protocol that names its own) run every requested method
+    a.all_methods = bool(a.model) or preset["models"] is not None
+    return a
+
+
+def model_methods(a: argparse.Namespace, label: str) -> list[str]:
+    """The base/corrector methods run for ``label`` (before the anchor-feature check)."""
+    return [
+        m for m in a.methods if m != EXPERT and (a.all_methods or m in DEFAULT_METHODS.get(label, METHODS))
+    ]
+
+
+def episode_conflicts(cells: dict, wanted: dict[str, int]) -> list[str]:
+    """Stored cells that a run asking ``wanted`` (cell key -> episodes) would replace by a different count."""
+    return [
+        f"{key} ({cells[key].get('episodes')} episodes stored, {n} asked)"
+        for key, n in wanted.items()
+        if key in cells and cells[key].get("episodes") != n
+    ]
+
+
 def main(argv: list[str] | None = None) -> None:
     from tqdm import tqdm
 
     from lerobot_dcdp.benchmark.report import write_report
     from lerobot_dcdp.benchmark.rollout import CONDITIONS, rollout
 
-    p = argparse.ArgumentParser(prog="dcdp-benchmark", description=__doc__.splitlines()[0])
-    p.add_argument(
-        "--model",
-        action="append",
-        default=None,
-        metavar="LABEL=DIR",
-        help="a corrector checkpoint to benchmark (repeatable); default: the shipped ones",
-    )
-    p.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
-    p.add_argument(
-        "--conditions", nargs="+", default=[c.name for c in CONDITIONS], choices=[c.name for c in CONDITIONS]
-    )
-    p.add_argument(
-        "--delays", nargs="+", type=int, default=[0], help="inference delays d (control steps) to run"
-    )
-    p.add_argument("--episodes", type=int, default=50)
-    p.add_argument("--seed-start", type=int, default=100_000)
-    p.add_argument("--max-steps", type=int, default=300)
-    p.add_argument("--batch-size", type=int, default=50, help="envs rolled out together")
-    p.add_argument("--latency-steps", type=int, default=300, help="batch-1 steps timed per method (0: skip)")
-    p.add_argument("--latency-rounds", type=int, default=10, help="episodes per method, interleaved")
-    p.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
-    p.add_argument("--videos", type=int, default=2, help="side-by-side open_loop|dcdp videos to render")
-    p.add_argument("--out", default="results/benchmark.json")
-    p.add_argument("--report", default="docs/RESULTS.md")
-    p.add_argument("--force", action="store_true", help="recompute finished cells")
-    a = p.parse_args(argv)
+    a = parse_args(argv)
 
     import torch
 
     torch.set_num_threads(a.threads)
-    models = (
-        dict(m.split("=", 1) for m in a.model)
-        if a.model
-        else {k: v for k, v in DEFAULT_MODELS.items() if Path(v).is_dir()}
-    )
-    if not models:
+    models = a.models
+    run_expert = EXPERT in a.methods
+    if not models and any(m != EXPERT for m in a.methods):
         sys.exit("dcdp-benchmark: error: no corrector found; pass --model LABEL=DIR")
     out = Path(a.out)
     results = json.loads(out.read_text()) if out.exists() else {"cells": {}, "latency": {}}
+    results.setdefault("cells", {})
+    results.setdefault("latency", {})
+    seeds = list(range(a.seed_start, a.seed_start + a.episodes))
+    expert_seeds = list(range(a.seed_start, a.seed_start + a.expert_episodes))
+    wanted = {
+        cell_key(label, m, c, d): len(seeds)
+        for label in models
+        for m in model_methods(a, label)
+        for c in a.conditions
+        for d in a.delays
+    }
+    if run_expert:
+        wanted.update({cell_key(EXPERT, EXPERT, c): len(expert_seeds) for c in a.conditions})
+    conflicts = [] if a.force else episode_conflicts(results["cells"], wanted)
+    if conflicts:
+        sys.exit(
+            f"dcdp-benchmark: error: {out} holds cells of another episode count, which this run would "
+            "replace: "
+            + "; ".join(conflicts[:5])
+            + (" ..." if len(conflicts) > 5 else "")
+            + ". Write to another file (--out, --report) or pass --force to replace them."
+        )
     results["command"] = "dcdp-benchmark " + " ".join(argv if argv is not None else sys.argv[1:])
     results["machine"] = machine()
     results["git_commit"] = git_commit()
-    seeds = list(range(a.seed_start, a.seed_start + a.episodes))
     conds = {c.name: c for c in CONDITIONS}
     video_dir = out.parent / "videos"
 
@@ -176,13 +289,12 @@ def main(argv: list[str] | None = None) -> None:
             tmp.replace(out)
 
     for label, path in models.items():
+        if not model_methods(a, label):
+            continue
         policy, pre, post, ident = load_model(path)
         results.setdefault("models", {})[label] = ident
         methods = [
-            m
-            for m in a.methods
-            if (a.model or m in DEFAULT_METHODS.get(label, METHODS))
-            and (m != "object_anchored" or policy.config.anchor_feature)
+            m for m in model_methods(a, label) if m != "object_anchored" or policy.config.anchor_feature
         ]
         todo = [
             (m, c, d)
@@ -270,8 +382,61 @@ def main(argv: list[str] | None = None) -> None:
                 }
             save()
         _write_videos(video_dir, label)
+    if run_expert:
+        run_expert_cells(a, results, conds, expert_seeds, save)
     write_report(results, Path(a.report), out)
     print(f"wrote {out} and {a.report}")
+
+
+def run_expert_cells(
+    a: argparse.Namespace, results: dict, conds: dict, seeds: list[int], save: Callable[[], None]
+) -> None:
+    """The ``expert`` row: the privileged scripted expert on every requested condition (no corrector, no
+    base; one cell per condition, shared by every model's table)."""
+    from tqdm import tqdm
+
+    from lerobot_dcdp.benchmark.rollout import expert_identity, expert_rollout
+
+    ident = expert_identity(a.expert_chunk)
+    cells = results["cells"]
+    todo = [
+        c
+        for c in a.conditions
+        if a.force or not _fresh_expert(cells.get(cell_key(EXPERT, EXPERT, c)), ident, seeds, a.max_steps)
+    ]
+    for cname in tqdm(todo, desc="expert: rollouts", unit="cell"):
+        t0 = time.perf_counter()
+        r = expert_rollout(conds[cname], seeds, a.max_steps, chunk=a.expert_chunk)
+        results["cells"][cell_key(EXPERT, EXPERT, cname)] = {
+            "model": EXPERT,
+            "method": EXPERT,
+            "condition": cname,
+            "inference_delay": 0,
+            **conds[cname].env_kwargs(),
+            "episodes": len(seeds),
+            "seeds": [seeds[0], seeds[-1]],
+            "max_steps": a.max_steps,
+            "success_rate": r.success_rate,
+            "score": r.score,
+            "mean_steps": float(np.mean(r.steps)),
+            "successes": [bool(s) for s in r.successes],
+            "max_rewards": [round(m, 5) for m in r.max_rewards],
+            "planning_ms_per_step_mean": float(np.mean(r.step_times_ms)),
+            "wall_s": round(time.perf_counter() - t0, 1),
+            "identity": ident,
+        }
+        save()
+
+
+def _fresh_expert(cell: dict | None, ident: dict, seeds: list[int], max_steps: int) -> bool:
+    """A stored expert cell is reused only for the same expert settings, seeds and step limit."""
+    return bool(
+        cell
+        and cell.get("identity") == ident
+        and cell.get("seeds", [None])[0] == seeds[0]
+        and cell.get("max_steps") == max_steps
+        and cell.get("episodes") == len(seeds)
+    )
 
 
 def merge_results(disk: dict, ours: dict, loaded: dict) -> dict:
