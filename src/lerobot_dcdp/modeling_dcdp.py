@@ -142,12 +142,11 @@ class DCDPPolicy(PreTrainedPolicy):
     def _adopt_base(self, base: PreTrainedPolicy) -> None:
         """Check ``base`` is the one the corrector was trained against (weights hash, type); record it."""
         config = self.config
+        # base_location='remote': the weights are on the server's machine, there is no hash to check here
         digest = state_dict_sha256(base.state_dict()) if config.base_location == "local" else None
-        if digest is None:  # the weights are on the remote base's machine
-            pass
-        elif config.base_weights_sha256 is None:
+        if digest is not None and config.base_weights_sha256 is None:
             config.base_weights_sha256 = digest
-        elif config.base_weights_sha256 != digest:
+        elif digest is not None and config.base_weights_sha256 != digest:
             raise BaseMismatchError(
                 f"base_weights_sha256 mismatch: the corrector was trained against base weights "
                 f"{config.base_weights_sha256[:12]}..., but base_policy_path={config.base_policy_path!r} "

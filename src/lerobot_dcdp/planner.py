@@ -32,16 +32,13 @@ class PlannedChunk:
     seconds: float
 
 
-class BackgroundPlanner:
-    """At most one chunk call of the base at a time, on one worker thread.
+class OneJobWorker:
+    """At most one planning job at a time on one worker thread: the job bookkeeping both planners share
+    (:class:`BackgroundPlanner` here, ``remote_planner.RemotePlanner`` over gRPC)."""
 
-    Args:
-        source: The control thread's chunk source; the worker plans with a copy of its base whose
-            observation history is the snapshot given to :meth:`submit`.
-    """
+    thread_name = "dcdp-planner"
 
-    def __init__(self, source: ChunkSource) -> None:
-        self._worker = ChunkSource(copy.copy(source.base))  # shares weights and config; own history
+    def __init__(self) -> None:
         self._pool: ThreadPoolExecutor | None = None
         self._job: tuple[Future, int, Any] | None = None
 
@@ -55,39 +52,28 @@ class BackgroundPlanner:
         """Control step whose observation the pending chunk is planned from."""
         return None if self._job is None else self._job[1]
 
-    def submit(
-        self, t_obs: int, prepared: dict[str, Tensor], snapshot: dict | None, length: int, context=None
-    ):
-        """Start planning ``length`` actions from step ``t_obs``'s prepared observation and the base's history
-        then (``ChunkSource.snapshot()`` right after that step's ``observe``). One job at a time."""
+    def _start(self, t_obs: int, context, fn, *args) -> None:
+        """Run ``fn(*args)`` on the worker as the job planned from step ``t_obs``."""
         if self._job is not None:
             raise RuntimeError("a chunk is already being planned: take() it first")
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dcdp-planner")
-        future = self._pool.submit(self._plan, dict(prepared), snapshot, length)
-        self._job = (future, t_obs, context)
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=self.thread_name)
+        self._job = (self._pool.submit(fn, *args), int(t_obs), context)
 
-    def _plan(self, prepared: dict[str, Tensor], snapshot: dict | None, length: int) -> tuple[Tensor, float]:
-        started = time.perf_counter()
-        self._worker.restore(snapshot)
-        chunk = self._worker.chunk(prepared, length)
-        return chunk, time.perf_counter() - started
-
-    def take(self, wait: bool) -> PlannedChunk | None:
-        """The pending chunk if it is done (``wait``: block until it is), else ``None``; an error the base
-        raised is raised here."""
+    def _finished(self, wait: bool) -> tuple[Any, int, Any] | None:
+        """``(fn's result, t_obs, context)`` of the pending job once it is done (``wait``: block until it
+        is), else ``None``; an error ``fn`` raised is raised here."""
         if self._job is None:
             return None
         future, t_obs, context = self._job
         if not wait and not future.done():
             return None
         self._job = None
-        chunk, seconds = future.result()
-        return PlannedChunk(chunk, t_obs, context, seconds)
+        return future.result(), t_obs, context
 
     def cancel(self) -> None:
         """Drop the pending chunk (a new episode); a call already running is waited for and its chunk or
-        error discarded, so the base is idle afterwards."""
+        error discarded, so the planner is idle afterwards."""
         if self._job is not None:
             future = self._job[0]
             self._job = None
@@ -100,3 +86,38 @@ class BackgroundPlanner:
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
+
+
+class BackgroundPlanner(OneJobWorker):
+    """The base's chunk calls, one at a time, on one worker thread.
+
+    Args:
+        source: The control thread's chunk source; the worker plans with a copy of its base whose
+            observation history is the snapshot given to :meth:`submit`.
+    """
+
+    def __init__(self, source: ChunkSource) -> None:
+        super().__init__()
+        self._worker = ChunkSource(copy.copy(source.base))  # shares weights and config; own history
+
+    def submit(
+        self, t_obs: int, prepared: dict[str, Tensor], snapshot: dict | None, length: int, context=None
+    ):
+        """Start planning ``length`` actions from step ``t_obs``'s prepared observation and the base's history
+        then (``ChunkSource.snapshot()`` right after that step's ``observe``). One job at a time."""
+        self._start(t_obs, context, self._plan, dict(prepared), snapshot, length)
+
+    def _plan(self, prepared: dict[str, Tensor], snapshot: dict | None, length: int) -> tuple[Tensor, float]:
+        started = time.perf_counter()
+        self._worker.restore(snapshot)
+        chunk = self._worker.chunk(prepared, length)
+        return chunk, time.perf_counter() - started
+
+    def take(self, wait: bool) -> PlannedChunk | None:
+        """The pending chunk if it is done (``wait``: block until it is), else ``None``; an error the base
+        raised is raised here."""
+        done = self._finished(wait)
+        if done is None:
+            return None
+        (chunk, seconds), t_obs, context = done
+        return PlannedChunk(chunk, t_obs, context, seconds)

@@ -35,7 +35,6 @@ import threading
 import time
 from collections import deque
 from collections.abc import Mapping
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,7 +49,7 @@ from lerobot.utils.feature_utils import hw_to_dataset_features
 from torch import Tensor
 
 from lerobot_dcdp.correction import check_normalization, normalize
-from lerobot_dcdp.planner import PlannedChunk
+from lerobot_dcdp.planner import OneJobWorker, PlannedChunk
 
 
 class RemotePlanningError(RuntimeError):
@@ -92,7 +91,7 @@ def remote_features(observation_features: Mapping[str, Any], n_obs_steps: int = 
     return feats
 
 
-class RemotePlanner:
+class RemotePlanner(OneJobWorker):
     """At most one chunk request to a LeRobot policy server at a time, on one worker thread.
 
     Args:
@@ -109,6 +108,8 @@ class RemotePlanner:
         rename_map: LeRobot's ``rename_map`` for the server's pre-processor.
         timeout_s: Deadline of each server call (seconds); the first connection waits as long for the server.
     """
+
+    thread_name = "dcdp-remote-planner"
 
     def __init__(
         self,
@@ -152,8 +153,7 @@ class RemotePlanner:
         self._channel: grpc.Channel | None = None
         self._stub: Any = None
         self._connect_lock = threading.Lock()
-        self._pool: ThreadPoolExecutor | None = None
-        self._job: tuple[Future, int, Any] | None = None
+        super().__init__()
         #: chunks taken since construction, and the wall time their requests took (seconds)
         self.chunks_taken = 0
         self.plan_seconds = 0.0
@@ -254,24 +254,12 @@ class RemotePlanner:
         return obs
 
     # ------------------------------------------------------------------ BackgroundPlanner's interface
-    @property
-    def pending(self) -> bool:
-        """Whether a chunk was submitted and not taken yet."""
-        return self._job is not None
-
-    @property
-    def t_obs(self) -> int | None:
-        """Control step whose observation the pending chunk is planned from."""
-        return None if self._job is None else self._job[1]
-
     def submit(
         self, t_obs: int, prepared: dict[str, Tensor], snapshot: dict | None, length: int, context=None
     ) -> None:
         """Ask the server for ``length`` actions from step ``t_obs``'s robot observation (the newest one given
         to :meth:`observe`). ``prepared`` only tells the batch size (must be 1) and the device the chunk is
         returned on; ``snapshot`` is not used (the history is the observed frames). One job at a time."""
-        if self._job is not None:
-            raise RuntimeError("a chunk is already being planned: take() it first")
         tensors = [v for v in prepared.values() if isinstance(v, Tensor)]
         if any(v.ndim and v.shape[0] != 1 for v in tensors):
             raise ValueError(
@@ -281,10 +269,9 @@ class RemotePlanner:
         timed = TimedObservation(
             timestamp=time.time(), timestep=int(t_obs), observation=self._observation(), must_go=True
         )
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dcdp-remote-planner")
-        future = self._pool.submit(self._plan, timed, int(length), device)
-        self._job = (future, int(t_obs), context)
+        if self.pending:  # before the observation is sent
+            raise RuntimeError("a chunk is already being planned: take() it first")
+        self._start(t_obs, context, self._plan, timed, int(length), device)
 
     def _plan(self, timed: TimedObservation, length: int, device: torch.device) -> tuple:
         self.connect()
@@ -326,13 +313,10 @@ class RemotePlanner:
     def take(self, wait: bool) -> RemoteChunk | None:
         """The pending chunk if it arrived (``wait``: block until it does), else ``None``; a failure of the
         request is raised here (:class:`RemotePlanningError`)."""
-        if self._job is None:
+        done = self._finished(wait)
+        if done is None:
             return None
-        future, t_obs, context = self._job
-        if not wait and not future.done():
-            return None
-        self._job = None
-        chunk, seconds, raw, timesteps, timestamps = future.result()
+        (chunk, seconds, raw, timesteps, timestamps), t_obs, context = done
         self.chunks_taken += 1
         self.plan_seconds += seconds
         return RemoteChunk(chunk, t_obs, context, seconds, raw, timesteps, timestamps)
@@ -341,18 +325,11 @@ class RemotePlanner:
         """Drop the pending chunk and the observed frames (a new episode); a request already running is waited
         for (at most ``timeout_s`` per call) and its chunk or error discarded."""
         self._frames.clear()
-        if self._job is not None:
-            future = self._job[0]
-            self._job = None
-            if not future.cancel():
-                future.exception()
+        super().cancel()
 
     def close(self) -> None:
         """Drop the pending chunk, stop the worker thread and close the channel (the server keeps running)."""
-        self.cancel()
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-            self._pool = None
+        super().close()
         with self._connect_lock:
             if self._channel is not None:
                 self._channel.close()
