@@ -104,6 +104,31 @@ def test_wall_clock_ticks_never_wait_for_a_slow_base(diffusion_base, demo_root) 
     assert policy._async.planner is None
 
 
+def test_a_chunk_older_than_its_length_starts_at_its_last_step(diffusion_base, demo_root) -> None:
+    """A base stuck for longer than the chunk it returns covers: the tick after it returns executes the
+    chunk's last action (every earlier entry is in the past), it does not fail on an empty slice."""
+    horizon = 4
+    policy = _policy(
+        diffusion_base, demo_root, n_action_steps=horizon, execution="open_loop", planning="async"
+    )
+    gated = _GatedBase(policy.base)
+    pre, _ = make_dcdp_pre_post_processors(policy.config)
+    length = policy.source.max_length
+    ticks = length + horizon + 2
+    observations = [pre(dict(o)) for o in env_observations(1, ticks + 1)]
+    torch.manual_seed(3)
+    policy.reset()
+    for t in range(ticks):
+        policy.select_action(dict(observations[t]))
+    t_obs = policy._async.planner.t_obs
+    assert ticks - t_obs > length  # the chunk is older than it is long
+    gated.gate.set()
+    planned, _ = policy._async.planner._job[0].result(timeout=120)
+    action = policy.select_action(dict(observations[ticks]))
+    torch.testing.assert_close(action, planned[:, -1])
+    policy.close()
+
+
 def test_async_planning_is_refused_where_every_step_replans(diffusion_base, demo_root) -> None:
     with pytest.raises(ValueError, match="planning='async' applies to the chunk modes"):
         make_dcdp_policy(diffusion_base, demo_root, planning="async", execution="closed_loop")

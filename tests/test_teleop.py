@@ -215,6 +215,49 @@ def test_a_teacher_policy_labels_every_step_with_its_own_action(diffusion_base, 
         torch.testing.assert_close(item["executed_action"], item["action"])
 
 
+def test_the_expert_teacher_labels_the_learners_states_with_the_scripted_experts_actions(
+    diffusion_base, tmp_path
+) -> None:
+    """--teacher=expert: the base drives (a DAgger round) and every label is what the scripted expert sends
+    for that observation; the expert's targets are its own, not the plan."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_dcdp.pusht.corrections import record_corrections
+
+    root = tmp_path / "expert"
+    record_corrections(
+        root,
+        "local/expert",
+        base_path=str(diffusion_base),
+        episodes=1,
+        seed=4,
+        teacher="expert",
+        execution="open_loop",
+        batch_size=1,
+        max_steps=10,
+        progress=False,
+    )
+    ds = LeRobotDataset("local/expert", root=root)
+    items = [ds[i] for i in range(len(ds))]
+    labels = torch.stack([x["action"] for x in items])
+    executed = torch.stack([x["executed_action"] for x in items])
+    expert = PushTExpert(PushTExpertConfig())
+    expert.connect()
+    for item, label in zip(items, labels, strict=True):
+        state, keypoints = item["observation.state"], item["observation.environment_state"]
+        feedback = dict(zip(AGENT_NAMES, state.tolist(), strict=True))
+        feedback.update(zip(KEYPOINT_NAMES, keypoints.tolist(), strict=True))
+        expert.send_feedback(feedback)
+        sent = expert.get_action()
+        torch.testing.assert_close(label, torch.tensor([sent[k] for k in AGENT_NAMES]), atol=1e-4, rtol=0)
+    expert.disconnect()
+    assert (labels - executed).norm(dim=-1).mean() > 1.0  # the base drove; the expert only labelled
+    with pytest.raises(ValueError, match="pass --teacher=teleop"):
+        record_corrections(
+            tmp_path / "b", base_path=str(diffusion_base), teacher="expert", teleop_config=PushTExpertConfig()
+        )
+
+
 def test_recorder_flag_errors_name_the_fix(diffusion_base, tmp_path) -> None:
     from lerobot_dcdp.pusht.corrections import parse_teleop_args, record_corrections
 

@@ -161,6 +161,9 @@ class DCDPPolicy(PreTrainedPolicy):
 
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path, *, config: DCDPConfig | None = None, **kwargs):
+        # a config read from the folder names its base relative to that folder, whatever pretrained_path it
+        # was saved with (a corrector loaded from one folder and saved to another records the first)
+        read_here = config is None
         if config is None:
             config = DCDPConfig.from_pretrained(
                 pretrained_name_or_path,
@@ -170,7 +173,7 @@ class DCDPPolicy(PreTrainedPolicy):
                     if k in ("revision", "cache_dir", "local_files_only", "token")
                 },
             )
-        if config.pretrained_path is None and os.path.isdir(str(pretrained_name_or_path)):
+        if (read_here or config.pretrained_path is None) and os.path.isdir(str(pretrained_name_or_path)):
             config.pretrained_path = pretrained_name_or_path
         kwargs["strict"] = True  # a corrector key that fails to load would silently leave a head at zero
         try:

@@ -165,7 +165,7 @@ class AsyncPlanning:
                 job = planner.take(wait=False)
             if job is not None:
                 state.plan_s = _smoothed(state.plan_s, job.seconds)
-                age = t - job.t_obs
+                age = min(t - job.t_obs, job.chunk.shape[1] - 1)  # older than its length: its last step
                 self._begin(state, mode, job.chunk[:, age : age + horizon], job.context)
 
     def _begin(self, state: EpisodeState, mode: ExecutionMode, chunk: Tensor, context: tuple) -> None:

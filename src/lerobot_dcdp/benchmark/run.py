@@ -42,6 +42,8 @@ DEFAULT_MODELS = {
     "act": shipped_model("pusht-dcdp-act-state"),
     "diffusion_demos": shipped_model("pusht-dcdp-state-demos"),
     "act_demos": shipped_model("pusht-dcdp-act-state-demos"),
+    "diffusion_demos_late": shipped_model("pusht-dcdp-state-demos-late"),
+    "act_demos_late": shipped_model("pusht-dcdp-act-state-demos-late"),
     "diffusion_teleop": shipped_model("pusht-dcdp-state-teleop"),
 }
 #: these correctors share their base with ``diffusion`` / ``act``: only their own DCDP row is run by default
@@ -49,6 +51,8 @@ DEFAULT_METHODS = {
     "diffusion_paper_recipe": ["dcdp"],
     "diffusion_demos": ["dcdp"],
     "act_demos": ["dcdp"],
+    "diffusion_demos_late": ["dcdp"],
+    "act_demos_late": ["dcdp"],
     "diffusion_teleop": ["dcdp"],
 }
 

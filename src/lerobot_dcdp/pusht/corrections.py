@@ -30,6 +30,11 @@ Teachers:
   translation of the block (``pusht_perturbed``), so this is the exact exogenous part of the block's motion:
   the push-induced motion the plan already expects is left alone, in every episode, static or not. The
   student has to tell drift from pushing from its observations.
+- ``expert`` (privileged, PushT): the scripted expert re-planning every 8 steps from the block's exact pose
+  (read from its keypoints): the registered ``pusht_expert`` teleoperator with its defaults, as a labeller.
+  With ``--execution dcdp`` the learner drives and the expert labels the states it visits (DAgger); record
+  each round to its own dataset and aggregate them with LeRobot's ``merge_datasets`` (the plan column is flat
+  so the stock merge copies it).
 - ``teleop``: a LeRobot teleoperator's action for the current observation (``--teleop.type=...`` and its
   ``--teleop.*`` flags): a person's corrections, HG-DAgger style. The registered ``pusht_expert``
   teleoperator (the scripted expert, :mod:`lerobot_dcdp.teleoperators`) stands in for the person; it sees the
@@ -61,9 +66,9 @@ from lerobot_dcdp.atomic_dataset import staged_dir
 from lerobot_dcdp.pusht.demos import EVAL_SEED_START, FPS, TASK
 
 EXECUTIONS = ("object_anchored", "open_loop", "dcdp", "teacher")
-TEACHERS = ("object_anchored", "anchored_when_drifting", "drift_offset", "teleop", "policy")
+TEACHERS = ("object_anchored", "anchored_when_drifting", "drift_offset", "expert", "teleop", "policy")
 #: Teachers that label each step online from the current observation (the others label in hindsight).
-ONLINE_TEACHERS = ("teleop", "policy")
+ONLINE_TEACHERS = ("expert", "teleop", "policy")
 MARKER = ".dcdp_corrections"
 
 
@@ -573,7 +578,11 @@ def record_corrections(
     frames = 0
     gap = []
     online = None
-    if teacher == "teleop":
+    if teacher in ("teleop", "expert"):
+        if teacher == "expert":
+            from lerobot_dcdp.teleoperators import PushTExpertConfig
+
+            teleop_config = PushTExpertConfig()
         online = TeleopTeacher(teleop_config, min(batch_size, episodes))
     elif teacher == "policy":
         online = PolicyTeacher(teacher_policy)
