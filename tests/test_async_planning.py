@@ -38,9 +38,17 @@ def test_step_clock_gives_the_actions_of_sync_planning_with_that_delay(
     observations = [pre(dict(o)) for o in env_observations(2, 14)]
     sync = _run(policy, observations)
     policy.config.planning, policy.config.planning_clock = "async", "steps"
+    threads = []  # where the corrector's per-chunk work ran
+    chunk_state = policy.corrector.chunk_state
+    policy.corrector.chunk_state = lambda *a: (
+        threads.append(threading.current_thread().name) or chunk_state(*a)
+    )
     asynchronous = _run(policy, observations)
     assert policy._async.planner is not None  # the worker planned every chunk after the first
     assert (policy.state.kernel is not None) == (mode == "dcdp")  # quiet ticks ran on the compiled kernel
+    if mode == "dcdp":  # the first chunk of each episode on the tick, every later one on the worker
+        assert threads[0] == "MainThread" and len(threads) > 2
+        assert all(name.startswith("dcdp-planner") for name in threads[1:]), threads
     torch.testing.assert_close(asynchronous, sync, atol=1e-6, rtol=0)
     policy.config.planning = "sync"
     policy.config.inference_delay = delay + 1
@@ -92,7 +100,7 @@ def test_wall_clock_ticks_never_wait_for_a_slow_base(diffusion_base, demo_root) 
     assert 1 <= t_obs < horizon  # planned during the first chunk (how early depends on measured times)
     gated.gate.set()
     job_future = policy._async.planner._job[0]
-    planned, _ = job_future.result(timeout=120)  # the test waits for the worker; the policy never does
+    planned = job_future.result(timeout=120)[0]  # the test waits for the worker; the policy never does
     action = policy.select_action(dict(observations[12]))
     age = 12 - t_obs
     assert policy.last_step == 0
@@ -123,7 +131,7 @@ def test_a_chunk_older_than_its_length_starts_at_its_last_step(diffusion_base, d
     t_obs = policy._async.planner.t_obs
     assert ticks - t_obs > length  # the chunk is older than it is long
     gated.gate.set()
-    planned, _ = policy._async.planner._job[0].result(timeout=120)
+    planned = policy._async.planner._job[0].result(timeout=120)[0]
     action = policy.select_action(dict(observations[ticks]))
     torch.testing.assert_close(action, planned[:, -1])
     policy.close()
@@ -150,7 +158,7 @@ class _ScriptedPlanner:
     def t_obs(self):
         return None if self.job is None else self.job[0]
 
-    def submit(self, t_obs, prepared, snapshot, length, context=None) -> None:
+    def submit(self, t_obs, prepared, snapshot, length, context=None, finish=None) -> None:
         self.submitted.append(t_obs)
         self.job = (t_obs, context)
 

@@ -125,8 +125,14 @@ class Corrector(nn.Module):
         """Stage-1 loss and its logged parts."""
         raise NotImplementedError
 
-    def begin_chunk(self, state: EpisodeState, chunk: Tensor) -> None:
-        """Per-chunk work when ``chunk`` (B, H, A, base-normalised) starts being executed."""
+    def chunk_state(self, chunk: Tensor, at_plan: Tensor | None):
+        """The per-chunk work of :meth:`begin_chunk` that needs only the chunk and the plan-time reference,
+        so a planner's worker can do it before the chunk starts (``None``: this kind has none)."""
+        return None
+
+    def begin_chunk(self, state: EpisodeState, chunk: Tensor, prepared=None) -> None:
+        """Per-chunk work when ``chunk`` (B, H, A, base-normalised) starts being executed (``prepared``:
+        :meth:`chunk_state` of this chunk, already computed)."""
         raise NotImplementedError
 
     def step(self, state: EpisodeState, step: int, batch: dict[str, Tensor]) -> Tensor:

@@ -65,7 +65,7 @@ class ReconstructCorrector(Corrector):
             "alpha": float(self.extractor.alpha.detach()),
         }
 
-    def begin_chunk(self, state: EpisodeState, chunk: Tensor) -> None:
+    def begin_chunk(self, state: EpisodeState, chunk: Tensor, prepared=None) -> None:
         state.z = self.encode_chunk(chunk)
         state.h = self.decoder.initial_state(state.z)
 

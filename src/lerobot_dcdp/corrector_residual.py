@@ -105,12 +105,18 @@ class ResidualCorrector(Corrector):
             **extra,
         }
 
-    def begin_chunk(self, state: EpisodeState, chunk: Tensor) -> None:
-        """Encode the chunk; on the fast path also sum the head's per-chunk inputs (``chunk_terms``)."""
-        state.z = self.encode_chunk(chunk)
-        state.terms = state.w_step = None
-        if self.fast_inference and not self.config.anchor_input:
-            state.terms, state.w_step = self.residual.chunk_terms(state.z, self.to_unit(chunk), state.at_plan)
+    def chunk_state(self, chunk: Tensor, at_plan: Tensor | None) -> tuple[Tensor, Tensor | None, ...]:
+        """``(z, terms, w_step)``: the chunk's code and, on the fast path, the head's per-chunk inputs summed
+        (``ResidualHead.chunk_terms``; None otherwise)."""
+        z = self.encode_chunk(chunk)
+        if self.fast_inference and not self.config.anchor_input and at_plan is not None:
+            return (z, *self.residual.chunk_terms(z, self.to_unit(chunk), at_plan))
+        return z, None, None
+
+    def begin_chunk(self, state: EpisodeState, chunk: Tensor, prepared=None) -> None:
+        """Encode the chunk; on the fast path also sum the head's per-chunk inputs (``chunk_terms``), or take
+        both from ``prepared`` (:meth:`chunk_state` done by the planner's worker)."""
+        state.z, state.terms, state.w_step = prepared or self.chunk_state(chunk, state.at_plan)
 
     def step(self, state: EpisodeState, step: int, batch: dict[str, Tensor]) -> Tensor:
         """``plan_s + delta`` (base-normalised)."""

@@ -39,9 +39,14 @@ class ExecutionMode:
         """Take in this step's observation before any chunk is planned (``switching``: a chunk may be
         planned or started on this step)."""
 
-    def begin_chunk(self, state: EpisodeState, chunk: Tensor) -> None:
+    def prepare_chunk(self, chunk: Tensor, at_plan: Tensor | None):
+        """The per-chunk work :meth:`begin_chunk` can take ready-made (a planner's worker does it before the
+        chunk starts); ``None``: this mode has none."""
+        return None
+
+    def begin_chunk(self, state: EpisodeState, chunk: Tensor, prepared=None) -> None:
         """Start executing ``chunk`` (B, L, A, base-normalised); ``state.at_plan`` / ``anchor_plan`` hold the
-        references of the observation it was planned from."""
+        references of the observation it was planned from; ``prepared``: :meth:`prepare_chunk` of it."""
         state.chunk = chunk
 
     def act(self, state: EpisodeState, step: int, batch: dict[str, Tensor]) -> Tensor:
@@ -106,11 +111,20 @@ class Corrected(ExecutionMode):
         else:
             self.corrector.push_frame(state, batch)
 
-    def begin_chunk(self, state: EpisodeState, chunk: Tensor) -> None:
+    def prepare_chunk(self, chunk: Tensor, at_plan: Tensor | None):
+        """The corrector's per-chunk state and the kernel's packed inputs (see ``Corrector.chunk_state``)."""
+        done = self.corrector.chunk_state(chunk, at_plan)
+        if done is None:
+            return None
+        packed = None if self.kernel is None or done[2] is None else self.kernel.pack(done[2])
+        return done, packed
+
+    def begin_chunk(self, state: EpisodeState, chunk: Tensor, prepared=None) -> None:
         state.chunk = chunk
-        self.corrector.begin_chunk(state, chunk)
+        done, packed = prepared if prepared is not None else (None, None)
+        self.corrector.begin_chunk(state, chunk, done)
         if self.kernel is not None:
-            self.kernel.prepare(state)
+            self.kernel.prepare(state, packed)
         else:
             state.kernel = None
 
@@ -131,7 +145,7 @@ class ClosedLoop(ExecutionMode):
     def plan_length(self) -> int | None:
         return 1
 
-    def begin_chunk(self, state: EpisodeState, chunk: Tensor) -> None:
+    def begin_chunk(self, state: EpisodeState, chunk: Tensor, prepared=None) -> None:
         state.plan = chunk
 
     def act(self, state: EpisodeState, step: int, batch: dict[str, Tensor]) -> Tensor:
@@ -146,7 +160,7 @@ class TemporalEnsemble(ClosedLoop):
     def plan_length(self) -> int | None:
         return None
 
-    def begin_chunk(self, state: EpisodeState, chunk: Tensor) -> None:
+    def begin_chunk(self, state: EpisodeState, chunk: Tensor, prepared=None) -> None:
         state.plan = temporal_ensemble_step(state.plan, chunk, self.config.te_weight)
 
 

@@ -113,20 +113,26 @@ class KernelRunner:
         self._run = step_kernel.residual_step  # numba is imported only once a kernel is used
         return self._packed[1]
 
-    def prepare(self, state: EpisodeState) -> None:
-        """Run the current chunk's steps on the kernel when it applies (after ``begin_chunk``'s chunk terms):
-        sets ``state.kernel`` (None: the PyTorch path)."""
-        state.kernel = None
-        if state.terms is None or state.rep is None or state.bank is None or not self.applies():
-            return
+    def pack(self, w_step: Tensor) -> tuple | None:
+        """The kernel's inputs for a chunk whose residual head has per-step weights ``w_step``: the packed
+        weights, ``w_step`` in the kernel's (out, in) layout and the action half range, as arrays (None where
+        the kernel does not apply or failed: the PyTorch path)."""
+        if not self.applies():
+            return None
         try:
             weights = self._weights()
         except Exception as err:  # compile or cache failure: this chunk and later ones run eagerly
             self.failed(err)
+            return None
+        return weights, w_step.T.contiguous().numpy(), self.corrector.action_half_range.numpy()
+
+    def prepare(self, state: EpisodeState, packed: tuple | None = None) -> None:
+        """Run the current chunk's steps on the kernel when it applies (after ``begin_chunk``'s chunk terms):
+        sets ``state.kernel`` (None: the PyTorch path); ``packed``: :meth:`pack` of the chunk, if done."""
+        state.kernel = None
+        if state.terms is None or state.rep is None or state.bank is None or not self.applies():
             return
-        # the kernel's (out, in) layout of the per-step weights, and the action half range, as arrays
-        w_step = state.w_step.T.contiguous().numpy()
-        state.kernel = (weights, w_step, self.corrector.action_half_range.numpy())
+        state.kernel = packed if packed is not None else self.pack(state.w_step)
 
     def act(self, state: EpisodeState, step: int, batch: dict[str, Tensor]) -> Tensor:
         """Chunk step ``step`` on the kernel from this step's observation; pushes the frame into the bank."""

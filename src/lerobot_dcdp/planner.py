@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -24,12 +25,14 @@ from lerobot_dcdp.chunk_sources import ChunkSource
 @dataclass
 class PlannedChunk:
     """A chunk the worker planned: from the observation of control step ``t_obs`` (``context``: whatever the
-    caller attached at submission, e.g. the corrector's plan-time references) in ``seconds`` of wall time."""
+    caller attached at submission, e.g. the corrector's plan-time references) in ``seconds`` of wall time;
+    ``prepared``: what the caller's ``finish(chunk)`` returned on the worker (None without one)."""
 
     chunk: Tensor
     t_obs: int
     context: Any
     seconds: float
+    prepared: Any = None
 
 
 class OneJobWorker:
@@ -101,17 +104,25 @@ class BackgroundPlanner(OneJobWorker):
         self._worker = ChunkSource(copy.copy(source.base))  # shares weights and config; own history
 
     def submit(
-        self, t_obs: int, prepared: dict[str, Tensor], snapshot: dict | None, length: int, context=None
+        self,
+        t_obs: int,
+        prepared: dict[str, Tensor],
+        snapshot: dict | None,
+        length: int,
+        context=None,
+        finish: Callable[[Tensor], Any] | None = None,
     ):
         """Start planning ``length`` actions from step ``t_obs``'s prepared observation and the base's history
-        then (``ChunkSource.snapshot()`` right after that step's ``observe``). One job at a time."""
-        self._start(t_obs, context, self._plan, dict(prepared), snapshot, length)
+        then (``ChunkSource.snapshot()`` right after that step's ``observe``); ``finish(chunk)``, when given,
+        runs on the worker after the base (the taken chunk's ``prepared``). One job at a time."""
+        self._start(t_obs, context, self._plan, dict(prepared), snapshot, length, finish)
 
-    def _plan(self, prepared: dict[str, Tensor], snapshot: dict | None, length: int) -> tuple[Tensor, float]:
+    def _plan(self, prepared: dict[str, Tensor], snapshot: dict | None, length: int, finish=None) -> tuple:
         started = time.perf_counter()
         self._worker.restore(snapshot)
         chunk = self._worker.chunk(prepared, length)
-        return chunk, time.perf_counter() - started
+        seconds = time.perf_counter() - started
+        return chunk, seconds, None if finish is None else finish(chunk)
 
     def take(self, wait: bool) -> PlannedChunk | None:
         """The pending chunk if it is done (``wait``: block until it is), else ``None``; an error the base
@@ -119,5 +130,5 @@ class BackgroundPlanner(OneJobWorker):
         done = self._finished(wait)
         if done is None:
             return None
-        (chunk, seconds), t_obs, context = done
-        return PlannedChunk(chunk, t_obs, context, seconds)
+        (chunk, seconds, finished), t_obs, context = done
+        return PlannedChunk(chunk, t_obs, context, seconds, finished)

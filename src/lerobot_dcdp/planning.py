@@ -156,7 +156,8 @@ class AsyncPlanning:
             self.planner = BackgroundPlanner(self.source)
         planner, t = self.planner, state.t
         if not planner.pending and state.step >= horizon - self.lead(state):
-            planner.submit(t, prepared, self.source.snapshot(), self.source.max_length, context)
+            finish = self._finisher(mode, horizon - state.step, context)
+            planner.submit(t, prepared, self.source.snapshot(), self.source.max_length, context, finish)
         if planner.pending and state.step >= horizon:
             if cfg.planning_clock == "steps":
                 due = t - planner.t_obs >= cfg.inference_delay
@@ -166,17 +167,33 @@ class AsyncPlanning:
             if job is not None:
                 state.plan_s = _smoothed(state.plan_s, job.seconds)
                 age = min(t - job.t_obs, job.chunk.shape[1] - 1)  # older than its length: its last step
-                self._begin(state, mode, job.chunk[:, age : age + horizon], job.context)
+                ready = job.prepared[1] if job.prepared is not None and job.prepared[0] == age else None
+                self._begin(state, mode, job.chunk[:, age : age + horizon], job.context, ready)
 
-    def _begin(self, state: EpisodeState, mode: ExecutionMode, chunk: Tensor, context: tuple) -> None:
-        """Start executing ``chunk`` (B, <= H, A; a short one is padded with its last action) planned from
-        the observation whose change representation and anchor keypoints ``context`` holds."""
+    def _finisher(self, mode: ExecutionMode, age: int, context: tuple):
+        """What the worker does after the base when the chunk is expected to start ``age`` steps after its
+        observation: the mode's per-chunk work on that slice (``(age, prepared)``), so the tick that switches
+        chunks only installs it; None where the mode has no such work."""
+        if type(mode).prepare_chunk is ExecutionMode.prepare_chunk:
+            return None
         horizon = self.config.n_action_steps
-        if chunk.shape[1] < horizon:
-            chunk = torch.cat([chunk, chunk[:, -1:].expand(-1, horizon - chunk.shape[1], -1)], dim=1)
+
+        def finish(chunk: Tensor):
+            start = min(age, chunk.shape[1] - 1)
+            with torch.no_grad():
+                return start, mode.prepare_chunk(_fit(chunk[:, start : start + horizon], horizon), context[0])
+
+        return finish
+
+    def _begin(
+        self, state: EpisodeState, mode: ExecutionMode, chunk: Tensor, context: tuple, prepared=None
+    ) -> None:
+        """Start executing ``chunk`` (B, <= H, A; a short one is padded with its last action) planned from
+        the observation whose change representation and anchor keypoints ``context`` holds (``prepared``:
+        the mode's per-chunk work on it, done by the worker)."""
         state.at_plan, state.anchor_plan = context
         state.step = 0
-        mode.begin_chunk(state, chunk)
+        mode.begin_chunk(state, _fit(chunk, self.config.n_action_steps), prepared)
 
     def lead(self, state: EpisodeState) -> int:
         """Steps before the chunk's end at which the next one is planned (``DCDPConfig.planning_clock``)."""
@@ -199,6 +216,13 @@ class AsyncPlanning:
         if self.planner is not None and not self.attached:
             self.planner.close()
             self.planner = None
+
+
+def _fit(chunk: Tensor, horizon: int) -> Tensor:
+    """``chunk`` (B, <= H, A) padded to ``horizon`` steps with its last action."""
+    if chunk.shape[1] < horizon:
+        chunk = torch.cat([chunk, chunk[:, -1:].expand(-1, horizon - chunk.shape[1], -1)], dim=1)
+    return chunk
 
 
 def _smoothed(previous: float | None, value: float, weight: float = 0.3) -> float:

@@ -34,7 +34,7 @@ import pickle  # nosec B403: LeRobot's protocol pickles its messages
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -255,11 +255,18 @@ class RemotePlanner(OneJobWorker):
 
     # ------------------------------------------------------------------ BackgroundPlanner's interface
     def submit(
-        self, t_obs: int, prepared: dict[str, Tensor], snapshot: dict | None, length: int, context=None
+        self,
+        t_obs: int,
+        prepared: dict[str, Tensor],
+        snapshot: dict | None,
+        length: int,
+        context=None,
+        finish: Callable[[Tensor], Any] | None = None,
     ) -> None:
         """Ask the server for ``length`` actions from step ``t_obs``'s robot observation (the newest one given
         to :meth:`observe`). ``prepared`` only tells the batch size (must be 1) and the device the chunk is
-        returned on; ``snapshot`` is not used (the history is the observed frames). One job at a time."""
+        returned on; ``snapshot`` is not used (the history is the observed frames); ``finish(chunk)`` runs
+        on the worker once the chunk arrived (the taken chunk's ``prepared``). One job at a time."""
         tensors = [v for v in prepared.values() if isinstance(v, Tensor)]
         if any(v.ndim and v.shape[0] != 1 for v in tensors):
             raise ValueError(
@@ -271,9 +278,9 @@ class RemotePlanner(OneJobWorker):
         )
         if self.pending:  # before the observation is sent
             raise RuntimeError("a chunk is already being planned: take() it first")
-        self._start(t_obs, context, self._plan, timed, int(length), device)
+        self._start(t_obs, context, self._plan, timed, int(length), device, finish)
 
-    def _plan(self, timed: TimedObservation, length: int, device: torch.device) -> tuple:
+    def _plan(self, timed: TimedObservation, length: int, device: torch.device, finish=None) -> tuple:
         self.connect()
         started = time.perf_counter()
         step = timed.get_timestep()
@@ -308,6 +315,7 @@ class RemotePlanner(OneJobWorker):
             raw[:length].unsqueeze(0),
             [a.get_timestep() for a in actions[:length]],
             [a.get_timestamp() for a in actions[:length]],
+            None if finish is None else finish(chunk),
         )
 
     def take(self, wait: bool) -> RemoteChunk | None:
@@ -316,10 +324,10 @@ class RemotePlanner(OneJobWorker):
         done = self._finished(wait)
         if done is None:
             return None
-        (chunk, seconds, raw, timesteps, timestamps), t_obs, context = done
+        (chunk, seconds, raw, timesteps, timestamps, finished), t_obs, context = done
         self.chunks_taken += 1
         self.plan_seconds += seconds
-        return RemoteChunk(chunk, t_obs, context, seconds, raw, timesteps, timestamps)
+        return RemoteChunk(chunk, t_obs, context, seconds, finished, raw, timesteps, timestamps)
 
     def cancel(self) -> None:
         """Drop the pending chunk and the observed frames (a new episode); a request already running is waited
