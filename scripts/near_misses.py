@@ -1,0 +1,97 @@
+"""How far from the goal the block gets where a method fails: its pose error at each episode's best coverage.
+
+Runs one benchmark condition (same envs, seeds and seeding as ``dcdp-benchmark``) for each method and prints,
+for the failed and the successful episodes, the median position error (px) and angle error (degrees) of the
+block at its best coverage, the median best coverage, and how many failures came within 0.05 of the success
+threshold (coverage >= 0.90).
+
+Usage: .venv/bin/python scripts/near_misses.py [--policy models/pusht-dcdp-state-demos]
+           [--condition constant_0.5] [--episodes 50] [--methods open_loop dcdp]
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import torch
+
+
+def run(policy_path: str, condition: str, episodes: int, method: str, seed_start: int = 100_000) -> dict:
+    from lerobot.envs.utils import preprocess_observation
+
+    from lerobot_dcdp.benchmark.rollout import CONDITIONS, _stack_obs
+    from lerobot_dcdp.benchmark.run import load_model, set_mode
+    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
+    from lerobot_dcdp.lockstep import run_lockstep
+
+    policy, pre, post, _ = load_model(policy_path)
+    cond = {c.name: c for c in CONDITIONS}[condition]
+    seeds = list(range(seed_start, seed_start + episodes))
+    set_mode(policy, method)
+    envs = [
+        make_perturbed_env(obs_type="environment_state_agent_pos", max_episode_steps=300, **cond.env_kwargs())
+        for _ in seeds
+    ]
+    best = {i: (-1.0, 0.0, 0.0) for i in range(len(seeds))}
+    torch.manual_seed(seeds[0])  # as the benchmark seeds a batch
+    policy.reset()
+
+    def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
+        return post(policy.select_action(pre(preprocess_observation(_stack_obs(obs))))).cpu().numpy()
+
+    def on_step(i: int, obs: dict, reward: float, info: dict) -> None:
+        if info["coverage"] > best[i][0]:
+            b, g = info["block_pose"], info["goal_pose"]
+            turn = (b[2] - g[2] + np.pi) % (2 * np.pi) - np.pi
+            best[i] = (
+                info["coverage"],
+                float(np.hypot(b[0] - g[0], b[1] - g[1])),
+                float(np.degrees(abs(turn))),
+            )
+
+    out = run_lockstep(envs, seeds, act, 300, on_step)
+    for env in envs:
+        env.close()
+    cov, pos, ang = (np.array([best[i][k] for i in best]) for k in range(3))
+    ok = np.array(out.successes)
+    med = lambda x: float(np.median(x)) if len(x) else float("nan")  # noqa: E731
+    return {
+        "success": float(ok.mean()),
+        "failed": int((~ok).sum()),
+        "near_misses": int((cov[~ok] >= 0.90).sum()),
+        "failed_pos_px": med(pos[~ok]),
+        "failed_ang_deg": med(ang[~ok]),
+        "failed_best_coverage": med(cov[~ok]),
+        "success_pos_px": med(pos[ok]),
+        "success_ang_deg": med(ang[ok]),
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--policy", default="models/pusht-dcdp-state-demos")
+    p.add_argument("--condition", default="constant_0.5")
+    p.add_argument("--episodes", type=int, default=50)
+    p.add_argument("--methods", nargs="+", default=["open_loop", "dcdp"])
+    a = p.parse_args()
+    torch.set_num_threads(1)
+    print("| method | success | failed: pos px | deg | best cover | near misses | success: pos px | deg |")
+    print("|---|---|---|---|---|---|---|---|")
+    for method in a.methods:
+        r = run(a.policy, a.condition, a.episodes, method)
+        cells = [
+            method,
+            f"{100 * r['success']:.0f} %",
+            f"{r['failed_pos_px']:.1f}",
+            f"{r['failed_ang_deg']:.1f}",
+            f"{r['failed_best_coverage']:.3f}",
+            f"{r['near_misses']}/{r['failed']}",
+            f"{r['success_pos_px']:.1f}",
+            f"{r['success_ang_deg']:.1f}",
+        ]
+        print("| " + " | ".join(cells) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
