@@ -147,8 +147,7 @@ def load_corrector(path: str | Path):
             f"{path} holds a correction={policy.config.correction!r} corrector: residual RL fine-tunes a "
             "residual head (train one with --policy.correction=residual first)"
         )
-    if policy.config.planning != "sync" or policy.config.inference_delay:
-        policy.config.planning, policy.config.inference_delay = "sync", 0
+    policy.config.planning, policy.config.inference_delay = "sync", 0  # the base plans on the tick, on time
     policy.corrector.fast_inference = False
     policy.requires_grad_(False)
     policy.corrector.residual.requires_grad_(True)
@@ -167,7 +166,6 @@ def collect(policy, pre, post, explore: ResidualExploration, seeds, specs, env_c
     n = len(envs)
     rows: list[list[tuple]] = [[] for _ in range(n)]
     rewards: list[list[float]] = [[] for _ in range(n)]
-    succeeded: list[list[bool]] = [[] for _ in range(n)]
     policy.reset()
     t = [0]
 
@@ -187,7 +185,6 @@ def collect(policy, pre, post, explore: ResidualExploration, seeds, specs, env_c
 
     def on_step(i: int, o: dict, reward: float, info: dict) -> None:
         rewards[i].append(reward)
-        succeeded[i].append(bool(info.get("is_success", False)))
 
     try:
         result = run_lockstep(envs, list(seeds), act, max_steps, on_step)
