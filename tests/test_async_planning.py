@@ -112,6 +112,48 @@ def test_wall_clock_ticks_never_wait_for_a_slow_base(diffusion_base, demo_root) 
     assert policy._async.planner is None
 
 
+def test_a_chunk_late_for_its_expected_age_is_prepared_on_the_tick(diffusion_base, demo_root) -> None:
+    """dcdp, wall clock: the worker prepares each chunk for the age it is expected to start at; a chunk that
+    arrives later than that is prepared again on the switching tick (never installed with the wrong slice),
+    and its actions are those of the chunk's right entries."""
+    horizon = 4
+    policy = _policy(diffusion_base, demo_root, n_action_steps=horizon, execution="dcdp", planning="async")
+    gated = _GatedBase(policy.base)
+    pre, _ = make_dcdp_pre_post_processors(policy.config)
+    observations = [pre(dict(o)) for o in env_observations(1, 14)]
+    threads = []
+    chunk_state = policy.corrector.chunk_state
+
+    def traced(*args):
+        threads.append(threading.current_thread().name)
+        return chunk_state(*args)
+
+    policy.corrector.chunk_state = traced
+    torch.manual_seed(3)
+    policy.reset()
+    for t in range(12):  # the second chunk is held back well past the end of the first
+        policy.select_action(dict(observations[t]))
+    gated.gate.set()
+    planned, _, prepared = policy._async.planner._job[0].result(timeout=120)
+    t_obs = policy._async.planner.t_obs
+    assert prepared is not None and prepared[0] < 12 - t_obs  # prepared for an earlier start
+    action = policy.select_action(dict(observations[12]))
+    assert threads[0] == "MainThread" and threads[1].startswith("dcdp-planner") and threads[2] == "MainThread"
+    age = 12 - t_obs
+    torch.testing.assert_close(policy.planned_chunk, planned[:, age : age + horizon])
+    reference = policy.state.copy()  # the same step computed from the installed chunk, eagerly
+    policy.corrector.fast_inference = False
+    reference.terms = reference.w_step = reference.kernel = None
+    reference.step = 0
+    policy.corrector.begin_chunk(reference, policy.planned_chunk)
+    assert reference.z is not None
+    torch.testing.assert_close(policy.state.z, reference.z)
+    torch.testing.assert_close(
+        action, policy.corrector.step(reference, 0, dict(observations[12])), atol=1e-5, rtol=0
+    )
+    policy.close()
+
+
 def test_a_chunk_older_than_its_length_starts_at_its_last_step(diffusion_base, demo_root) -> None:
     """A base stuck for longer than the chunk it returns covers: the tick after it returns executes the
     chunk's last action (every earlier entry is in the past), it does not fail on an empty slice."""

@@ -57,11 +57,11 @@ def test_gaussian_log_prob_and_the_clipped_surrogate() -> None:
     assert logp.grad[0] == 0 and logp.grad[1] < 0
 
 
-def _residual_corrector(diffusion_base: Path, demo_root: Path, out: Path) -> Path:
+def _residual_corrector(diffusion_base: Path, demo_root: Path, out: Path, **overrides) -> Path:
     """A tiny residual corrector (head trained a little, so it is not all zero) saved with its processors."""
     from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
 
-    policy = make_dcdp_policy(diffusion_base, demo_root, correction="residual", n_action_steps=4)
+    policy = make_dcdp_policy(diffusion_base, demo_root, correction="residual", n_action_steps=4, **overrides)
     with torch.no_grad():
         policy.corrector.residual.net[-1].weight.normal_(0, 0.01)
     policy.save_pretrained(out)
@@ -77,7 +77,7 @@ def test_exploration_samples_around_the_head_bounded_by_the_starting_corrector(
     from lerobot_dcdp.finetune_rl import load_corrector
     from lerobot_dcdp.residual_exploration import ResidualExploration
 
-    policy, pre, _ = load_corrector(_residual_corrector(diffusion_base, demo_root, tmp_path / "c"))
+    policy, pre, _, _ = load_corrector(_residual_corrector(diffusion_base, demo_root, tmp_path / "c"))
     head, half = policy.corrector.residual, policy.corrector.action_half_range
     obs = [pre(dict(o)) for o in env_observations(2, 6)]
     torch.manual_seed(0)  # the base's sampling noise: the same chunks in every pass
@@ -112,7 +112,10 @@ def test_finetune_changes_only_the_residual_head_is_reproducible_and_resumes(
     from lerobot_dcdp.finetune_rl import RLConfig, finetune
     from lerobot_dcdp.modeling_dcdp import DCDPPolicy
 
-    start = _residual_corrector(diffusion_base, demo_root, tmp_path / "start")
+    # saved to run open loop with a late base: RL runs it as dcdp on time, its checkpoints keep what was saved
+    start = _residual_corrector(
+        diffusion_base, demo_root, tmp_path / "start", execution="open_loop", inference_delay=1
+    )
     settings = dict(policy=str(start), envs=2, max_steps=12, minibatch=8, save_every=1, critic_warmup=0)
     settings.update(lr=1e-2, init_std=0.1, max_deviation=0.2)
     a = finetune(RLConfig(output_dir=str(tmp_path / "a"), iterations=2, **settings), progress=False)
@@ -121,6 +124,8 @@ def test_finetune_changes_only_the_residual_head_is_reproducible_and_resumes(
     after = DCDPPolicy.from_pretrained(a / "pretrained_model").state_dict()
     changed = {k for k in before if not torch.equal(before[k], after[k])}
     assert changed and all(k.startswith("corrector.residual.") for k in changed)
+    saved = json.loads((a / "pretrained_model" / "config.json").read_text())
+    assert (saved["execution"], saved["inference_delay"], saved["planning"]) == ("open_loop", 1, "sync")
 
     # the same command gives the same weights; a cut-off run resumed gives them too
     b = finetune(RLConfig(output_dir=str(tmp_path / "b"), iterations=1, **settings), progress=False)

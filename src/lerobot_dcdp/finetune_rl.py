@@ -110,6 +110,11 @@ class RLConfig:
         for name in ("init_std", "min_std", "max_deviation", "lr", "critic_lr", "clip"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.kl_weight < 0 or self.critic_warmup < 0 or self.success_bonus < 0:
+            raise ValueError(
+                f"kl_weight, critic_warmup and success_bonus must be >= 0, got {self.kl_weight}, "
+                f"{self.critic_warmup}, {self.success_bonus}"
+            )
         if self.init_std < self.min_std:
             raise ValueError(f"init_std ({self.init_std}) must be >= min_std ({self.min_std})")
         if not 0 <= self.gamma <= 1 or not 0 <= self.lam <= 1:
@@ -136,11 +141,23 @@ class Rollout:
     max_rewards: list[float]
 
 
+#: Config fields RL runs with its own values; a checkpoint keeps the corrector's.
+RUN_SETTINGS = ("execution", "planning", "inference_delay", "anchor_feature")
+
+
 def load_corrector(path: str | Path):
     """The corrector at ``path`` in ``dcdp`` mode on the eager path (every step calls its residual head),
-    and its processors."""
+    its processors, and its own values of :data:`RUN_SETTINGS` (what its checkpoints save)."""
+    from lerobot_dcdp.configuration_dcdp import DCDPConfig
     from lerobot_dcdp.pusht.corrections import load_policy
 
+    saved = DCDPConfig.from_pretrained(str(path))
+    if saved.device not in (None, "cpu"):
+        raise ValueError(
+            f"{path} is configured for device {saved.device!r}; dcdp-finetune-rl runs on CPU (its rollouts "
+            "are CPU-bound simulation): save the corrector with device='cpu'"
+        )
+    settings = {name: getattr(saved, name) for name in RUN_SETTINGS}
     policy, pre, post = load_policy(str(path), None, "dcdp", "observation.environment_state")
     if policy.config.correction != "residual":
         raise ValueError(
@@ -151,7 +168,7 @@ def load_corrector(path: str | Path):
     policy.corrector.fast_inference = False
     policy.requires_grad_(False)
     policy.corrector.residual.requires_grad_(True)
-    return policy, pre, post
+    return policy, pre, post, settings
 
 
 @torch.no_grad()
@@ -272,8 +289,9 @@ class ResidualPPO:
                     policy_loss = clipped_policy_loss(log_prob, old_log_prob[idx], advantages[idx], cfg.clip)
                     with torch.no_grad():
                         start = self.explore.start(*inputs)
-                    # KL(N(mean, s) || N(start, s)) with the same noise s
-                    kl = (((mean - start) / self.log_std.exp()) ** 2).sum(-1).mean() / 2
+                    # KL(N(mean, s) || N(start, s)) with the same noise s; s is held fixed here, or the
+                    # penalty could be lowered by raising the noise instead of staying near the start
+                    kl = (((mean - start) / self.log_std.detach().exp()) ** 2).sum(-1).mean() / 2
                     loss = policy_loss + cfg.kl_weight * kl
                     self.actor_opt.zero_grad()
                     loss.backward()
@@ -309,9 +327,11 @@ class ResidualPPO:
             self.critic_opt.load_state_dict(state["critic_opt"])
 
 
-def save_checkpoint(out: Path, iteration: int, policy, pre, post, ppo: ResidualPPO, extra: dict) -> Path:
+def save_checkpoint(
+    out: Path, iteration: int, policy, pre, post, ppo: ResidualPPO, extra: dict, settings: dict
+) -> Path:
     """Write ``checkpoints/<iteration>`` whole (a temporary folder renamed into place), then point ``last``
-    at it."""
+    at it; the saved config carries the corrector's own ``settings`` (:data:`RUN_SETTINGS`)."""
     checkpoints = out / "checkpoints"
     checkpoints.mkdir(parents=True, exist_ok=True)
     final = checkpoints / f"{iteration:06d}"
@@ -319,7 +339,14 @@ def save_checkpoint(out: Path, iteration: int, policy, pre, post, ppo: ResidualP
     tmp.chmod(0o755)  # mkdtemp's 0700 would hide the checkpoint from other users
     try:
         model = tmp / "pretrained_model"
-        policy.save_pretrained(model)
+        running = {name: getattr(policy.config, name) for name in settings}
+        for name, value in settings.items():
+            setattr(policy.config, name, value)
+        try:
+            policy.save_pretrained(model)
+        finally:
+            for name, value in running.items():
+                setattr(policy.config, name, value)
         pre.save_pretrained(model)
         post.save_pretrained(model)
         torch.save({**ppo.state_dict(), **extra}, tmp / "rl_state.pt")
@@ -354,7 +381,8 @@ def finetune(cfg: RLConfig, resume: bool = False, progress: bool = True) -> Path
         saved = RLConfig(**state["config"])
         cfg = RLConfig(**{**asdict(saved), "iterations": cfg.iterations})
         start_iteration = state["iteration"] + 1
-        policy, pre, post = load_corrector(last / "pretrained_model")
+        policy, pre, post, settings = load_corrector(last / "pretrained_model")
+        _keep_log_lines(out / "log.jsonl", state["iteration"])
     else:
         if not cfg.policy:
             raise ValueError("--policy=<trained residual corrector folder> is required (or --resume)")
@@ -363,7 +391,8 @@ def finetune(cfg: RLConfig, resume: bool = False, progress: bool = True) -> Path
                 f"{(out / 'checkpoints').resolve()} exists: pass --resume to continue it or pick another "
                 "--output-dir"
             )
-        policy, pre, post = load_corrector(cfg.policy)
+        policy, pre, post, settings = load_corrector(cfg.policy)
+        (out / "log.jsonl").unlink(missing_ok=True)  # a run cut off before its first checkpoint
     env_config = parse_env_args(cfg.env_args)
     generator = torch.Generator().manual_seed(cfg.seed)
     ppo = ResidualPPO(policy, cfg, generator)
@@ -404,9 +433,16 @@ def finetune(cfg: RLConfig, resume: bool = False, progress: bool = True) -> Path
                 "env_steps": env_steps,
                 "generator": generator.get_state(),
             }
-            final = save_checkpoint(out, iteration, policy, pre, post, ppo, extra)
+            final = save_checkpoint(out, iteration, policy, pre, post, ppo, extra, settings)
     ppo.explore.remove()
     return final
+
+
+def _keep_log_lines(log: Path, last_iteration: int) -> None:
+    """Drop the log lines of iterations after ``last_iteration`` (logged, cut off before their checkpoint)."""
+    if log.is_file():
+        lines = [x for x in log.read_text().splitlines() if json.loads(x)["iteration"] <= last_iteration]
+        log.write_text("".join(line + "\n" for line in lines))
 
 
 def _episode_lengths(dones: torch.Tensor) -> list[int]:

@@ -157,7 +157,8 @@ class AsyncPlanning:
         planner, t = self.planner, state.t
         if not planner.pending and state.step >= horizon - self.lead(state):
             finish = self._finisher(mode, horizon - state.step, context)
-            planner.submit(t, prepared, self.source.snapshot(), self.source.max_length, context, finish)
+            extra = {} if finish is None else {"finish": finish}  # planners without it keep working
+            planner.submit(t, prepared, self.source.snapshot(), self.source.max_length, context, **extra)
         if planner.pending and state.step >= horizon:
             if cfg.planning_clock == "steps":
                 due = t - planner.t_obs >= cfg.inference_delay
