@@ -130,9 +130,12 @@ class KernelRunner:
         """Run the current chunk's steps on the kernel when it applies (after ``begin_chunk``'s chunk terms):
         sets ``state.kernel`` (None: the PyTorch path); ``packed``: :meth:`pack` of the chunk, if done."""
         state.kernel = None
-        if state.terms is None or state.rep is None or state.bank is None or not self.applies():
+        if state.terms is None or state.rep is None or state.bank is None:
             return
-        state.kernel = packed if packed is not None else self.pack(state.w_step)
+        if packed is None:
+            state.kernel = self.pack(state.w_step)  # checks applies() itself
+        elif self.applies():
+            state.kernel = packed
 
     def act(self, state: EpisodeState, step: int, batch: dict[str, Tensor]) -> Tensor:
         """Chunk step ``step`` on the kernel from this step's observation; pushes the frame into the bank."""
