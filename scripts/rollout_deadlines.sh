@@ -7,10 +7,12 @@
 # `held_steps` (simulated 0.1 s steps the world ran under a stale target because the next action came late)
 # and `superseded_actions` (actions overwritten by the next one before the world stepped: sent right after
 # a late tick, never executed): the cost of the misses as the robot sees it (LeRobot does not catch up
-# after a late tick).
+# after a late tick). The robot runs the benchmark's 300-step episodes (ending on success, from seed 100000 on:
+# --robot.episode_steps), so the mean score of the episodes finished in DURATION is reported too.
 # Usage: scripts/rollout_deadlines.sh [corrector dir]    (default models/pusht-dcdp-state)
 #   env: FPS=10 DURATION=30 MODES="open_loop dcdp object_anchored temporal_ensemble closed_loop"
 #        PLANNING=sync|async (--policy.planning; async applies to open_loop, dcdp, object_anchored)
+#        TICKS_PER_STEP=1 (--policy.ticks_per_step: FPS/10 holds each planned action for that many ticks)
 #        PERTURBATION=constant MAGNITUDE=2.0 OUT=runs/rollout_deadlines
 #        LEROBOT_ROLLOUT=.venv/bin/lerobot-rollout (the CLI to run)
 # Writes $OUT/<mode>.log and $OUT/summary.md (also printed).
@@ -19,20 +21,22 @@ policy=${1:-models/pusht-dcdp-state}
 FPS=${FPS:-10}; DURATION=${DURATION:-30}; OUT=${OUT:-runs/rollout_deadlines}
 MODES=${MODES:-open_loop dcdp object_anchored temporal_ensemble closed_loop}
 LEROBOT_ROLLOUT=${LEROBOT_ROLLOUT:-.venv/bin/lerobot-rollout}
-PLANNING=${PLANNING:-sync}
+PLANNING=${PLANNING:-sync}; TICKS_PER_STEP=${TICKS_PER_STEP:-1}
 mkdir -p "$OUT"
 {
-  echo "policy \`$policy\`, planning=${PLANNING}, ${FPS} Hz, ${DURATION} s per mode, ${PERTURBATION:-constant} drift ${MAGNITUDE:-2.0} px/step,"
+  echo "policy \`$policy\`, planning=${PLANNING}, ticks_per_step=${TICKS_PER_STEP}, ${FPS} Hz, ${DURATION} s per mode, ${PERTURBATION:-constant} drift ${MAGNITUDE:-2.0} px/step,"
   echo "$(nproc) CPUs, OMP_NUM_THREADS=1, load average before: $(cut -d' ' -f1-3 /proc/loadavg), $(date -u +%FT%TZ)"
   echo
-  echo "| mode | ticks | missed deadlines (LeRobot warnings) | missed % | slowest tick ms | held sim steps | superseded actions | max coverage |"
-  echo "|---|---|---|---|---|---|---|---|"
+  echo "| mode | ticks | missed deadlines (LeRobot warnings) | missed % | slowest tick ms | held sim steps | superseded actions | max coverage | episodes finished | mean score |"
+  echo "|---|---|---|---|---|---|---|---|---|---|"
 } > "$OUT/summary.md"
 for mode in $MODES; do
   log=$OUT/$mode.log
   OMP_NUM_THREADS=1 HF_HUB_OFFLINE=1 "$LEROBOT_ROLLOUT" --robot.type=pusht_sim \
     --robot.perturbation="${PERTURBATION:-constant}" --robot.magnitude="${MAGNITUDE:-2.0}" \
-    --policy.path="$policy" --policy.execution="$mode" --policy.planning="$PLANNING" --fps="$FPS" --duration="$DURATION" \
+    --robot.seed=100000 --robot.episode_steps=300 \
+    --policy.path="$policy" --policy.execution="$mode" --policy.planning="$PLANNING" \
+    --policy.ticks_per_step="$TICKS_PER_STEP" --fps="$FPS" --duration="$DURATION" \
     --return_to_initial_position=false --play_sounds=false > "$log" 2>&1 \
     || { echo "rollout failed for $mode, see $log" >&2; exit 1; }
   summary=$(grep -o "PushTSim disconnected: .*" "$log") \
@@ -44,7 +48,9 @@ for mode in $MODES; do
   slowest_ms=$([ -n "$slowest" ] && awk -v hz="$slowest" 'BEGIN{printf "%.0f", 1000/hz}' || echo "-")
   ticks=$(field actions)
   pct=$(awk -v m="$misses" -v t="$ticks" 'BEGIN{printf "%.1f", 100*m/t}')
-  echo "| $mode | $ticks | $misses | $pct | $slowest_ms | $(field held_steps) | $(field superseded_actions) | $(field max_coverage) |" \
+  episodes=$(grep -q " episodes=" <<< "$summary" && field episodes || echo 0)
+  score=$([ "$episodes" -gt 0 ] && field mean_score || echo "-")
+  echo "| $mode | $ticks | $misses | $pct | $slowest_ms | $(field held_steps) | $(field superseded_actions) | $(field max_coverage) | $episodes | $score |" \
     >> "$OUT/summary.md"
 done
 cat "$OUT/summary.md"

@@ -249,3 +249,31 @@ def test_a_remote_base_plans_every_chunk_and_its_weights_are_never_read(diffusio
     policy.close()  # leaves the attached planner to its owner
     with pytest.raises(ValueError, match="planning=async"):
         type(config)(base_policy_path="base", base_location="remote")
+
+
+def test_ticks_per_step_holds_each_planned_action_on_a_faster_loop(diffusion_base, demo_root) -> None:
+    """ticks_per_step=k (a 10 Hz base on a k*10 Hz loop): every k-th call computes the action of the next
+    planned step from its own observation, the calls between return it unchanged and never read theirs (so
+    the base, the corrector and their histories run at the base's rate): the actions of the base's rate, each
+    k times."""
+    policy = _policy(diffusion_base, demo_root, n_action_steps=4)
+    pre, _ = make_dcdp_pre_post_processors(policy.config)
+    observations = [pre(dict(o)) for o in env_observations(2, 10)]
+    at_base_rate = _run(policy, observations)
+    policy.config.ticks_per_step = 3
+    torch.manual_seed(3)
+    policy.reset()
+    out, holds = [], []
+    for o in observations:
+        other = {k: v + 7.0 if k.startswith("observation") else v for k, v in o.items()}
+        for tick in range(3):  # the ticks between planned steps see another scene: it must not matter
+            batch = o if tick == 0 else other
+            holds.append(policy.holds_next_tick)
+            out.append(policy.select_action(dict(batch)))
+    assert holds == [False, True, True] * len(observations)
+    torch.testing.assert_close(torch.stack(out), at_base_rate.repeat_interleave(3, dim=0), atol=0, rtol=0)
+    policy.reset()  # a new episode holds nothing
+    assert not policy.holds_next_tick
+    policy.close()
+    with pytest.raises(ValueError, match="ticks_per_step must be an integer >= 1"):
+        type(policy.config)(base_policy_path=str(diffusion_base), ticks_per_step=0)

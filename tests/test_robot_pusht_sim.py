@@ -78,6 +78,10 @@ def test_bad_config_is_refused() -> None:
         PushTSimConfig(magnitude=-1.0)
     with pytest.raises(ValueError, match="seed"):
         PushTSimConfig(seed="zero")
+    with pytest.raises(ValueError, match="episode_steps must be an integer >= 1"):
+        PushTSimConfig(episode_steps=0)
+    with pytest.raises(ValueError, match="episodes_path needs episode_steps"):
+        PushTSimConfig(episodes_path="episodes.jsonl")
 
 
 def test_lockstep_drift_moves_the_block(tmp_path: Path) -> None:
@@ -95,6 +99,43 @@ def test_lockstep_drift_moves_the_block(tmp_path: Path) -> None:
         kp = np.array([robot.get_observation()[k] for k in KEYPOINT_NAMES]).reshape(8, 2)
         kp0 = np.array([obs[k] for k in KEYPOINT_NAMES]).reshape(8, 2)
         assert kp - kp0 == pytest.approx(np.tile([-10.0, 0.0], (8, 1)), abs=1e-6)
+
+
+def test_episodes_end_and_the_next_starts_from_the_next_seed(tmp_path: Path) -> None:
+    """With ``episode_steps`` the robot runs the benchmark's protocol by itself: an episode ends after that
+    many steps, is recorded (in memory and as one JSON line), and the scene jumps to a fresh episode from the
+    next seed."""
+    log = tmp_path / "out" / "episodes.jsonl"
+    kw = {"perturbation": "constant", "magnitude": 1.0, "realtime": False}
+    with make(tmp_path, seed=7, episode_steps=4, episodes_path=str(log), **kw) as robot:
+        hold = {k: robot.get_observation()[k] for k in AGENT_NAMES}
+        for _ in range(10):
+            robot.send_action(hold)
+        assert robot.sim_steps == 10
+        assert [(e["episode"], e["seed"], e["steps"]) for e in robot.episodes] == [(0, 7, 4), (1, 8, 4)]
+        after_two = robot.get_observation()
+        with make(tmp_path, seed=9, **kw) as fresh:  # the third episode is seed 9 after 2 steps
+            fresh.send_action(hold), fresh.send_action(hold)
+            assert after_two == pytest.approx(fresh.get_observation())
+        for e in robot.episodes:
+            assert 0.0 <= e["score"] <= 1.0 and e["success"] is False
+            assert e["score"] == pytest.approx(min(e["max_coverage"] / 0.95, 1.0))
+        assert [json.loads(line) for line in log.read_text().splitlines()] == robot.episodes
+        assert robot.mean_score() == pytest.approx(np.mean([e["score"] for e in robot.episodes]))
+
+
+def test_an_episode_ends_at_success(tmp_path: Path) -> None:
+    """``end_on_success``: the block put on the goal pose succeeds on the first step, which ends the episode
+    (one step long, score 1); with ``end_on_success=False`` it runs its full length."""
+    for end_on_success, steps in ((True, 1), (False, 3)):
+        with make(tmp_path, seed=1, episode_steps=3, end_on_success=end_on_success, realtime=False) as robot:
+            sim = robot._env.unwrapped  # the block on gym-pusht's goal pose (256, 256, 45 deg), the agent far
+            sim.block.angle, sim.block.position, sim.agent.position = np.pi / 4, (256.0, 256.0), (60.0, 60.0)
+            assert robot.block_pose == pytest.approx((256.0, 256.0, np.pi / 4))
+            for _ in range(3):
+                robot.send_action({"x.pos": 60.0, "y.pos": 60.0})
+            first = robot.episodes[0]
+            assert (first["steps"], first["success"], first["score"]) == (steps, True, 1.0)
 
 
 def test_realtime_world_runs_on_while_the_controller_is_late(tmp_path: Path) -> None:
@@ -188,12 +229,15 @@ def test_rollout_deadlines_script(tmp_path: Path) -> None:
     row = next(
         line for line in (out / "summary.md").read_text().splitlines() if line.startswith("| open_loop")
     )
-    _, mode, ticks, misses, pct, _slowest, held, superseded, coverage, _ = (c.strip() for c in row.split("|"))
+    _, mode, ticks, misses, pct, _slowest, held, superseded, coverage, episodes, score, _ = (
+        c.strip() for c in row.split("|")
+    )
     log = (out / "open_loop.log").read_text()
     # at most fps * duration (+1) ticks; how many ran depends on the machine's load, not on the script
     assert int(misses) == log.count("Record loop is running slower") <= int(ticks) <= 21
     assert int(ticks) >= 1 and int(held) >= 0 and int(superseded) >= 0 and 0.0 <= float(coverage) <= 1.0
     assert float(pct) == pytest.approx(100 * int(misses) / int(ticks), abs=0.05)
+    assert (episodes, score) == ("0", "-")  # 2 s: no 300-step episode finishes
 
 
 def _fake_rollout(tmp_path: Path, log_lines: list[str]) -> Path:
@@ -219,18 +263,28 @@ SLOW = "WARNING base.py:99 Record loop is running slower ({hz} Hz) than the targ
 
 
 @pytest.mark.parametrize(
-    ("warnings", "misses", "slowest_ms"),
-    [([], 0, "-"), ([SLOW.format(hz="8.1"), SLOW.format(hz="4.0")], 2, "250")],
+    ("warnings", "misses", "slowest_ms", "episodes"),
+    [
+        ([], 0, "-", ""),
+        ([SLOW.format(hz="8.1"), SLOW.format(hz="4.0")], 2, "250", ""),
+        ([], 0, "-", " episodes=3 mean_score=0.815"),
+    ],
 )
-def test_rollout_deadlines_parsing(tmp_path: Path, warnings: list[str], misses: int, slowest_ms: str) -> None:
-    """The row counts LeRobot's slow-loop warnings (none is a valid outcome) and reads the robot's line."""
+def test_rollout_deadlines_parsing(
+    tmp_path: Path, warnings: list[str], misses: int, slowest_ms: str, episodes: str
+) -> None:
+    """The row counts LeRobot's slow-loop warnings (none is a valid outcome) and reads the robot's line
+    (finished episodes and their mean score when the robot reports any)."""
     out = tmp_path / "out"
-    env = {**ENV, "LEROBOT_ROLLOUT": str(_fake_rollout(tmp_path, [*warnings, SUMMARY])), "MODES": "dcdp"}
+    log = [*warnings, SUMMARY + episodes]
+    env = {**ENV, "LEROBOT_ROLLOUT": str(_fake_rollout(tmp_path, log)), "MODES": "dcdp"}
     proc = _run_deadlines(env | {"OUT": str(out)})
     assert proc.returncode == 0, proc.stderr
     row = next(line for line in proc.stdout.splitlines() if line.startswith("| dcdp"))
     cells = [c.strip() for c in row.split("|")[1:-1]]
-    assert cells == ["dcdp", "20", str(misses), f"{100 * misses / 20:.1f}", slowest_ms, "1", "0", "0.412"]
+    scored = ["3", "0.815"] if episodes else ["0", "-"]
+    counts = ["20", str(misses), f"{100 * misses / 20:.1f}", slowest_ms, "1", "0", "0.412"]
+    assert cells == ["dcdp", *counts, *scored]
 
 
 def test_rollout_deadlines_needs_robot_summary(tmp_path: Path) -> None:

@@ -259,7 +259,15 @@ def test_the_expert_teacher_labels_the_learners_states_with_the_scripted_experts
 
 
 def test_recorder_flag_errors_name_the_fix(diffusion_base, tmp_path) -> None:
-    from lerobot_dcdp.pusht.corrections import parse_teleop_args, record_corrections
+    from lerobot_dcdp.pusht.corrections import TeleopTeacher, parse_teleop_args, record_corrections
+
+    teacher = TeleopTeacher(PushTExpertConfig(), 1)  # shown the scene: an env without keypoints is refused
+    try:
+        with pytest.raises(ValueError, match=r"not \['environment_state'\]: .*--env.obs_type=environment_st"):
+            teacher.check_observation({"pixels", "agent_pos"})
+        teacher.check_observation({"agent_pos", "environment_state"})
+    finally:
+        teacher.close()
 
     with pytest.raises(ValueError, match="needs a teleoperator: --teleop.type"):
         record_corrections(tmp_path / "a", base_path=str(diffusion_base), teacher="teleop", episodes=1)

@@ -76,6 +76,13 @@ class DCDPConfig(PreTrainedConfig):
             benchmarks: reproducible): planning starts ``inference_delay`` ticks before the chunk ends and
             its chunk is used exactly ``inference_delay`` ticks after its observation (the tick waits for the
             worker if it is slower), the same actions as ``planning=sync`` with that ``inference_delay``.
+        ticks_per_step: Control ticks per planned step: the control loop's rate over the rate the base was
+            trained at (default 1; a 10 Hz base on a 30 Hz loop: 3). The policy computes an action (base,
+            corrector, their observation histories) on every ``ticks_per_step``-th ``select_action`` call and
+            returns the same action on the calls between, so a chunk lasts as long in time as in training
+            instead of being run ``ticks_per_step`` times too fast. A client that feeds a planner itself
+            (``dcdp-robot-client``) records an observation only on the calls that compute
+            (``DCDPPolicy.holds_next_tick``).
         base_location: ``local`` (default): the base's weights are loaded here and it plans here. ``remote``:
             the base plans on another machine (``dcdp-robot-client`` with LeRobot's stock policy server):
             only its ``config.json`` and processor files are read here (not its weights, so their hash is
@@ -165,6 +172,7 @@ class DCDPConfig(PreTrainedConfig):
     inference_delay: int = 0
     planning: str = "sync"
     planning_clock: str = "wall"
+    ticks_per_step: int = 1
     base_location: str = "local"
     te_weight: float = 0.5
     correction: str = "residual"
@@ -233,6 +241,9 @@ class DCDPConfig(PreTrainedConfig):
         _check_choice("execution", self.execution, EXECUTION_MODES)
         _check_choice("planning", self.planning, PLANNING_MODES)
         _check_choice("planning_clock", self.planning_clock, PLANNING_CLOCKS)
+        tps = self.ticks_per_step
+        if isinstance(tps, bool) or not isinstance(tps, int) or tps < 1:
+            raise ValueError(f"ticks_per_step must be an integer >= 1, got {tps!r}")
         _check_choice("base_location", self.base_location, BASE_LOCATIONS)
         if self.base_location == "remote" and self.planning != "async":
             raise ValueError(

@@ -268,10 +268,28 @@ class DCDPPolicy(PreTrainedPolicy):
         self.source.reset()
         self._async.cancel()
         self.state: EpisodeState = new_episode(self.config)
+        self._held: Tensor | None = None  # ticks_per_step > 1: the action held, for _held_ticks more calls
+        self._held_ticks = 0
+
+    @property
+    def holds_next_tick(self) -> bool:
+        """Whether the next ``select_action`` call returns the held action without computing
+        (``ticks_per_step`` > 1, between two planned steps)."""
+        return self._held_ticks > 0
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor]) -> Tensor:
-        """One action (B, A) per environment for the current step (normalised; the post-processor maps it)."""
+        """One action (B, A) per environment for the current tick (normalised; the post-processor maps it).
+        With ``ticks_per_step`` k > 1 it is computed on every k-th call and held on the calls between."""
+        if self._held_ticks > 0:
+            self._held_ticks -= 1
+            return self._held.clone()
+        action = self._compute_action(batch)
+        if self.config.ticks_per_step > 1:
+            self._held, self._held_ticks = action.clone(), self.config.ticks_per_step - 1
+        return action
+
+    def _compute_action(self, batch: dict[str, Tensor]) -> Tensor:
         self.check(batch, self.state)
         if self.config.base_location == "remote" and not self._async.attached:
             raise ValueError(

@@ -184,7 +184,8 @@ def run(cfg: DCDPRobotClientConfig, policy=None, robot=None) -> dict[str, float]
         end = time.perf_counter() + cfg.duration
         while (start := time.perf_counter()) < end:
             raw = robot.get_observation()
-            planner.observe(raw)
+            if not policy.holds_next_tick:  # --policy.ticks_per_step: the base's frames at its own rate
+                planner.observe(raw)
             batch = pre(build_inference_frame(dict(raw), device, obs_features, task=cfg.task or None))
             with torch.no_grad():
                 action = post(policy.select_action(batch))

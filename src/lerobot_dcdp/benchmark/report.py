@@ -420,7 +420,33 @@ def shown_path(path: str) -> str:
         return path
 
 
-def write_report(results: dict, report: Path, json_path: Path) -> None:
+def realtime_section(realtime_dir: Path) -> list[str]:
+    """The real-time measurements (issue 23) as report lines: every ``*.md`` in ``realtime_dir``, in name
+    order, as written by the script named in it (``scripts/client_scores.sh``,
+    ``scripts/rollout_deadlines.sh``), headings moved three levels down; none when the folder is absent or
+    empty."""
+    files = sorted(realtime_dir.glob("*.md")) if realtime_dir.is_dir() else []
+    if not files:
+        return []
+    parts = [
+        "## Real time (issue 23): asynchronous planning and the base on LeRobot's policy server",
+        "",
+        f"Not `dcdp-benchmark`'s rollouts: the summaries in `{realtime_dir}`, written by "
+        "`scripts/rollout_deadlines.sh` (`rollout_deadlines_*`) and `scripts/client_scores.sh` "
+        "(`client_scores_*`), copied here unchanged (real-time runs on `pusht_sim`; how to read them: "
+        "`docs/ROLLOUT.md`).",
+        "",
+    ]
+    for f in files:
+        body, fenced = [], False
+        for line in f.read_text().splitlines():
+            fenced ^= line.startswith("```")
+            body.append("###" + line if line.startswith("#") and not fenced else line)
+        parts += [f"### `{f.name}`", "", *body, ""]
+    return parts
+
+
+def write_report(results: dict, report: Path, json_path: Path, realtime_dir: Path | None = None) -> None:
     plot_path, delay_path = plot_paths(json_path)
     success_path = success_plot_path(json_path)
     plot(results, plot_path)
@@ -490,6 +516,8 @@ def write_report(results: dict, report: Path, json_path: Path) -> None:
                 delayed,
                 "",
             ]
+    if realtime_dir is not None:
+        parts += realtime_section(realtime_dir)
     parts += [
         "| score vs drift | success vs drift |",
         "|---|---|",

@@ -131,6 +131,7 @@ def protocols() -> dict[str, dict]:
             "videos": 2,
             "out": "results/benchmark.json",
             "report": "docs/RESULTS.md",
+            "realtime": "results/realtime",  # the real-time summaries the report shows (issue 23)
         },
         "mild": {
             "models": {k: DEFAULT_MODELS[k] for k in ("diffusion_demos", "act_demos")},
@@ -141,6 +142,7 @@ def protocols() -> dict[str, dict]:
             "videos": 0,
             "out": "results/benchmark_mild.json",
             "report": "docs/RESULTS_MILD.md",
+            "realtime": None,
         },
     }
 
@@ -199,6 +201,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     for key in ("methods", "conditions", "episodes", "latency_steps", "videos", "out", "report"):
         if getattr(a, key) is None:
             setattr(a, key, preset[key])
+    a.realtime = preset["realtime"]
     if a.expert_episodes is None:
         a.expert_episodes = a.episodes
     for key in ("episodes", "expert_episodes", "expert_chunk"):
@@ -388,7 +391,7 @@ def main(argv: list[str] | None = None) -> None:
         _write_videos(video_dir, label)
     if run_expert:
         run_expert_cells(a, results, conds, expert_seeds, save)
-    write_report(results, Path(a.report), out)
+    write_report(results, Path(a.report), out, Path(a.realtime) if a.realtime else None)
     print(f"wrote {out} and {a.report}")
 
 

@@ -211,6 +211,26 @@ class TeleopTeacher:
         for t in self.teleops:
             t.connect()
 
+    #: the env's raw observation keys whose values are shown to a teleoperator that takes feedback
+    FEEDBACK_KEYS = ("agent_pos", "environment_state")
+
+    def check_observation(self, keys) -> None:
+        """Refuse, before any episode runs, an env whose raw observations (``keys``) lack what a teleoperator
+        that takes feedback is shown (the agent position and the object keypoints).
+
+        Raises:
+            ValueError: naming the missing keys and the observation type that holds them.
+        """
+        if not self.teleops[0].feedback_features:
+            return
+        missing = [k for k in self.FEEDBACK_KEYS if k not in keys]
+        if missing:
+            raise ValueError(
+                f"teleoperator {self.teleops[0].name!r} is shown the agent position and the block keypoints, "
+                f"but the env's observations hold {sorted(keys)}, not {missing}: pick the env's observation "
+                "type that holds them (pusht: --env.obs_type=environment_state_agent_pos)"
+            )
+
     def reset(self, n: int) -> None:
         for t in self.teleops[:n]:
             if hasattr(t, "reset"):
@@ -562,7 +582,8 @@ def record_corrections(
     try:
         from lerobot.envs.utils import preprocess_observation
 
-        first = preprocess_observation({k: v[None] for k, v in probe.reset(seed=seeds[0])[0].items()})
+        raw_first = probe.reset(seed=seeds[0])[0]
+        first = preprocess_observation({k: v[None] for k, v in raw_first.items()})
     finally:
         probe.close()
     missing = [k for k in keys if k not in first]
@@ -584,6 +605,11 @@ def record_corrections(
 
             teleop_config = PushTExpertConfig()
         online = TeleopTeacher(teleop_config, min(batch_size, episodes))
+        try:
+            online.check_observation(set(raw_first))
+        except ValueError:
+            online.close()
+            raise
     elif teacher == "policy":
         online = PolicyTeacher(teacher_policy)
     try:

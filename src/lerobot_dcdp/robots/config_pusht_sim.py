@@ -23,7 +23,16 @@ class PushTSimConfig(RobotConfig):
         resample_every: Simulated steps between direction draws of the ``random`` drift.
         directions_deg: Direction set of the ``random`` drift.
         seed: Seed of the episode started on ``connect()`` (block pose, goal, random drift); ``None``:
-            unseeded.
+            unseeded. With ``episode_steps``, episode ``k`` (from 0) uses ``seed + k``, the benchmark's one
+            episode per seed.
+        episode_steps: Simulated steps after which an episode ends and the next one starts (the benchmark's
+            300); ``None``: one episode that never ends (the robot keeps running after success).
+        end_on_success: With ``episode_steps``, also end an episode at its first success (coverage > 0.95),
+            as the benchmark and ``lerobot-eval`` do.
+        episodes_path: With ``episode_steps``, a JSON Lines file to which every finished episode appends one
+            record (``episode``, ``seed``, ``steps``, ``score`` = max reward, ``max_coverage``, ``success``),
+            so that a client that never asks the robot (LeRobot's stock ``RobotClient``) can be scored;
+            ``None``: kept in memory only (``PushTSim.episodes``).
         id: LeRobot's robot id (``--robot.id``); default ``pusht_sim``.
         realtime: ``True``: simulated time follows the wall clock from the first action on: an action
             that arrives more than one control step (0.1 s) after the previous one first lets the world
@@ -38,6 +47,9 @@ class PushTSimConfig(RobotConfig):
     directions_deg: list[float] = field(default_factory=lambda: list(DEFAULT_DIRECTIONS_DEG))
     seed: int | None = 0
     realtime: bool = True
+    episode_steps: int | None = None
+    end_on_success: bool = True
+    episodes_path: str | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -48,3 +60,8 @@ class PushTSimConfig(RobotConfig):
         )
         if self.seed is not None and (isinstance(self.seed, bool) or not isinstance(self.seed, int)):
             raise ValueError(f"seed must be an integer or None, got {self.seed!r}")
+        steps = self.episode_steps
+        if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
+            raise ValueError(f"episode_steps must be an integer >= 1 or None, got {self.episode_steps!r}")
+        if self.episodes_path is not None and self.episode_steps is None:
+            raise ValueError("episodes_path needs episode_steps (an endless episode never finishes)")

@@ -16,9 +16,12 @@ strategy writes). The DCDP pre-processor's first step, ``dcdp_split_state``
 
 from __future__ import annotations
 
+import json
 import logging
 import math
+import os
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -41,8 +44,11 @@ class PushTSim(Robot):
 
     Simulated time advances only through :meth:`send_action` (one 0.1 s control step per action in
     lock-step mode; in ``realtime`` mode as many steps as the wall clock says are due, see
-    :class:`PushTSimConfig`). Episodes never end on their own: the simulation keeps running after success,
-    as a robot would; ``connect()`` starts a fresh episode from ``config.seed``.
+    :class:`PushTSimConfig`). ``connect()`` starts an episode from ``config.seed``. Without
+    ``config.episode_steps`` it never ends: the simulation keeps running after success, as a robot would.
+    With it, an episode ends after that many steps (or at success, ``end_on_success``), is recorded in
+    :attr:`episodes` (and ``config.episodes_path``), and the next starts at once from the next seed: the
+    scene jumps, as it would after a reset between a real robot's episodes; the client is not told.
 
     Attributes:
         actions_sent: ``send_action`` calls since ``connect()``.
@@ -53,6 +59,9 @@ class PushTSim(Robot):
         superseded_actions: (``realtime``) actions replaced by a newer one before any step was due (sent
             less than a step after the previous one, e.g. right after a late tick): never executed.
         coverage: Goal coverage after the latest step; ``max_coverage`` and ``succeeded`` since ``connect()``.
+        episodes: Finished episodes since ``connect()`` (``episode_steps`` only), one record each: ``episode``
+            (from 0), ``seed``, ``steps``, ``score`` (the episode's max reward, LeRobot's ``avg_max_reward``
+            term), ``max_coverage``, ``success``.
     """
 
     config_class = PushTSimConfig
@@ -79,6 +88,14 @@ class PushTSim(Robot):
         self.coverage = 0.0
         self.max_coverage = 0.0
         self.succeeded = False
+        self.episodes: list[dict[str, Any]] = []
+        self._start_episode_stats()
+
+    def _start_episode_stats(self) -> None:
+        self._episode_steps = 0
+        self._episode_reward = 0.0
+        self._episode_coverage = 0.0
+        self._episode_success = False
 
     # ------------------------------------------------------------------ features
     @property
@@ -119,6 +136,8 @@ class PushTSim(Robot):
         )
         self._obs, _ = env.reset(seed=cfg.seed)
         self._reset_stats()
+        if cfg.episodes_path is not None:
+            Path(cfg.episodes_path).parent.mkdir(parents=True, exist_ok=True)
         self._sim_dt = 1.0 / float(env.unwrapped.control_hz)
         self._low = env.action_space.low.astype(np.float64)
         self._high = env.action_space.high.astype(np.float64)
@@ -135,7 +154,12 @@ class PushTSim(Robot):
             f"late_actions={self.late_actions} held_steps={self.held_steps} "
             f"superseded_actions={self.superseded_actions} "
             f"max_coverage={self.max_coverage:.3f} success={self.succeeded}"
+            + (f" episodes={len(self.episodes)} mean_score={self.mean_score():.3f}" if self.episodes else "")
         )
+
+    def mean_score(self) -> float:
+        """Mean ``score`` of the finished :attr:`episodes` (0.0 when none finished)."""
+        return float(np.mean([e["score"] for e in self.episodes])) if self.episodes else 0.0
 
     # ------------------------------------------------------------------ I/O
     @check_if_not_connected
@@ -194,11 +218,43 @@ class PushTSim(Robot):
         return {k: float(v) for k, v in zip(AGENT_NAMES, target, strict=True)}
 
     def _step(self, target: np.ndarray) -> None:
-        self._obs, _, _, _, info = self._env.step(target.astype(np.float32))
+        self._obs, reward, _, _, info = self._env.step(target.astype(np.float32))
         self.sim_steps += 1
         self.coverage = float(info.get("coverage", 0.0))
         self.max_coverage = max(self.max_coverage, self.coverage)
-        self.succeeded = self.succeeded or bool(info.get("is_success", False))
+        success = bool(info.get("is_success", False))
+        self.succeeded = self.succeeded or success
+        cfg = self.config
+        if cfg.episode_steps is None:
+            return
+        self._episode_steps += 1
+        self._episode_reward = max(self._episode_reward, float(reward))
+        self._episode_coverage = max(self._episode_coverage, self.coverage)
+        self._episode_success = self._episode_success or success
+        if self._episode_steps >= cfg.episode_steps or (success and cfg.end_on_success):
+            self._finish_episode()
+
+    def _finish_episode(self) -> None:
+        """Record the episode that just ended and start the next one from the next seed."""
+        cfg = self.config
+        k = len(self.episodes)
+        record = {
+            "episode": k,
+            "seed": None if cfg.seed is None else cfg.seed + k,
+            "steps": self._episode_steps,
+            "score": self._episode_reward,
+            "max_coverage": self._episode_coverage,
+            "success": self._episode_success,
+        }
+        self.episodes.append(record)
+        if cfg.episodes_path is not None:  # one whole line per write: a reader never sees half a record
+            with open(cfg.episodes_path, "a") as f:
+                f.write(json.dumps(record) + "\n")
+                f.flush()
+                os.fsync(f.fileno())
+        logger.info(f"{self} episode {k} ended: {record}")
+        self._obs, _ = self._env.reset(seed=None if cfg.seed is None else cfg.seed + k + 1)
+        self._start_episode_stats()
 
     @property
     @check_if_not_connected
