@@ -1,6 +1,7 @@
 """Table of scripts/client_scores.sh: per fps, the stock RobotClient's and dcdp-robot-client's episodes
 (``<client>_<fps>.jsonl`` written by the pusht_sim robot), score ± s.e. and success, and their difference
-on the seeds both finished. Usage: python scripts/client_scores.py <out dir> <fps> [<fps> ...]"""
+on the seeds both finished. Usage: python scripts/client_scores.py <out dir>[,<out dir>...] <fps> [<fps> ...]
+(several folders: runs of the script on other seeds, pooled by seed)."""
 
 from __future__ import annotations
 
@@ -10,11 +11,13 @@ import sys
 from pathlib import Path
 
 
-def load(path: Path) -> dict[int, dict]:
-    """Finished episodes by seed (an absent file: none)."""
-    if not path.exists():
-        return {}
-    return {e["seed"]: e for e in map(json.loads, path.read_text().splitlines())}
+def load(paths: list[Path]) -> dict[int, dict]:
+    """Finished episodes by seed, pooled over ``paths`` (an absent file: none)."""
+    out: dict[int, dict] = {}
+    for path in paths:
+        if path.exists():
+            out.update({e["seed"]: e for e in map(json.loads, path.read_text().splitlines())})
+    return out
 
 
 def mean_se(values: list[float]) -> tuple[float, float]:
@@ -33,11 +36,11 @@ CLIENTS = {
 }
 
 
-def main(out: Path, rates: list[str]) -> None:
+def main(outs: list[Path], rates: list[str]) -> None:
     print("| fps | client | episodes | score ± s.e. | success | minus stock, same seeds (n) |")
     print("|---|---|---|---|---|---|")
     for fps in rates:
-        runs = {c: load(out / f"{c}_{fps}.jsonl") for c in CLIENTS}
+        runs = {c: load([out / f"{c}_{fps}.jsonl" for out in outs]) for c in CLIENTS}
         for client, name in CLIENTS.items():
             eps = list(runs[client].values())
             if not eps:
@@ -53,4 +56,4 @@ def main(out: Path, rates: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]), sys.argv[2:])
+    main([Path(d) for d in sys.argv[1].split(",")], sys.argv[2:])
