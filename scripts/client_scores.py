@@ -12,15 +12,32 @@ from pathlib import Path
 
 
 def load(paths: list[Path]) -> dict[int, dict]:
-    """Finished episodes by seed, pooled over ``paths`` (an absent file: none)."""
+    """Finished episodes by seed, pooled over ``paths`` (an absent file: none; a last line cut off by a killed
+    client is skipped).
+
+    Raises:
+        ValueError: an episode without a seed (the robot ran unseeded) or a seed found twice.
+    """
     out: dict[int, dict] = {}
     for path in paths:
-        if path.exists():
-            out.update({e["seed"]: e for e in map(json.loads, path.read_text().splitlines())})
+        if not path.exists():
+            continue
+        lines = path.read_text().splitlines()
+        for i, line in enumerate(lines):
+            try:
+                e = json.loads(line)
+            except json.JSONDecodeError:
+                if i == len(lines) - 1:
+                    continue
+                raise
+            if e.get("seed") is None or e["seed"] in out:
+                raise ValueError(f"{path}: episodes must have distinct seeds (--robot.seed), got {e}")
+            out[e["seed"]] = e
     return out
 
 
 def mean_se(values: list[float]) -> tuple[float, float]:
+    """Mean and its standard error (NaN where undefined)."""
     n = len(values)
     if n == 0:
         return math.nan, math.nan
@@ -56,4 +73,6 @@ def main(outs: list[Path], rates: list[str]) -> None:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) < 3:
+        sys.exit(__doc__)
     main([Path(d) for d in sys.argv[1].split(",")], sys.argv[2:])

@@ -20,7 +20,12 @@ import numpy as np
 UNSEEN_DIRECTIONS = [0.0, 60.0, 120.0, 180.0, 240.0, 300.0]
 
 
-def parse_condition(text: str):
+def parse_condition(text: str) -> tuple:
+    """``(Condition, extra env kwargs)`` for one ``--conditions`` entry.
+
+    Raises:
+        ValueError: naming the entry and the accepted forms.
+    """
     from lerobot_dcdp.benchmark.rollout import Condition
 
     parts = text.split(":")
@@ -48,6 +53,8 @@ def main() -> None:
         "--conditions", nargs="+", default=["static", "constant:1.75:200", "random:1.25", "constant:0.6:300"]
     )
     a = p.parse_args()
+    if a.episodes < 2:
+        p.error("--episodes must be >= 2 (a standard error needs two)")
     torch.set_num_threads(1)
     policy, pre, post, _ = load_model(a.policy)
     seeds = list(range(a.seed_start, a.seed_start + a.episodes))

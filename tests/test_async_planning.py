@@ -251,12 +251,14 @@ def test_a_remote_base_plans_every_chunk_and_its_weights_are_never_read(diffusio
         type(config)(base_policy_path="base", base_location="remote")
 
 
-def test_ticks_per_step_holds_each_planned_action_on_a_faster_loop(diffusion_base, demo_root) -> None:
+@pytest.mark.parametrize("planning", ["sync", "async"])
+def test_ticks_per_step_holds_each_planned_action(diffusion_base, demo_root, planning) -> None:
     """ticks_per_step=k (a 10 Hz base on a k*10 Hz loop): every k-th call computes the action of the next
     planned step from its own observation, the calls between return it unchanged and never read theirs (so
     the base, the corrector and their histories run at the base's rate): the actions of the base's rate, each
-    k times."""
-    policy = _policy(diffusion_base, demo_root, n_action_steps=4)
+    k times (async planning on the step clock: its chunks are planned and aged in computing calls)."""
+    policy = _policy(diffusion_base, demo_root, n_action_steps=4, inference_delay=1)
+    policy.config.planning, policy.config.planning_clock = planning, "steps"
     pre, _ = make_dcdp_pre_post_processors(policy.config)
     observations = [pre(dict(o)) for o in env_observations(2, 10)]
     at_base_rate = _run(policy, observations)

@@ -82,6 +82,8 @@ def test_bad_config_is_refused() -> None:
         PushTSimConfig(episode_steps=0)
     with pytest.raises(ValueError, match="episodes_path needs episode_steps"):
         PushTSimConfig(episodes_path="episodes.jsonl")
+    with pytest.raises(ValueError, match="end_on_success must be true or false"):
+        PushTSimConfig(episode_steps=10, end_on_success="no")
 
 
 def test_lockstep_drift_moves_the_block(tmp_path: Path) -> None:
@@ -237,7 +239,8 @@ def test_rollout_deadlines_script(tmp_path: Path) -> None:
     assert int(misses) == log.count("Record loop is running slower") <= int(ticks) <= 21
     assert int(ticks) >= 1 and int(held) >= 0 and int(superseded) >= 0 and 0.0 <= float(coverage) <= 1.0
     assert float(pct) == pytest.approx(100 * int(misses) / int(ticks), abs=0.05)
-    assert (episodes, score) == ("0", "-")  # 2 s: no 300-step episode finishes
+    ended = log.count("PushTSim episode ")  # the robot's line per finished episode (one on early success)
+    assert int(episodes) == ended and (score == "-") == (ended == 0)
 
 
 def _fake_rollout(tmp_path: Path, log_lines: list[str]) -> Path:

@@ -307,7 +307,8 @@ class DCDPPolicy(PreTrainedPolicy):
         changed since plan time, so this is the base's chunk plus the corrections a still world gets).
 
         A query: the episode state and the base's observation queues are the same afterwards, so calling it
-        between ``select_action`` calls changes none of their actions.
+        between ``select_action`` calls changes none of their actions. Its steps are planned steps (each lasts
+        ``ticks_per_step`` control ticks).
         """
         self.check(batch, self.state)
         state, queues = self.state.copy(), self.source.snapshot()

@@ -22,10 +22,11 @@
 
 The server builds the base's input from raw robot values, not from the policy's normalised batch, so the
 planner needs the robot's observation of every control step: call :meth:`RemotePlanner.observe` with
-``robot.get_observation()`` once per tick *before* ``policy.select_action``; ``submit`` ignores ``prepared``
-and ``snapshot`` (it reads only the batch size and device from ``prepared``) and sends the newest observed
-frame, with the ``n_obs_steps - 1`` frames before it packed into ``observation.state`` for a base that reads
-a history (``dcdp_state_history`` on the server side).
+``robot.get_observation()`` once per tick *before* ``policy.select_action`` (with the policy's
+``ticks_per_step`` > 1 only on the ticks it computes, ``not policy.holds_next_tick``); ``submit`` ignores
+``prepared`` and ``snapshot`` (it reads only the batch size and device from ``prepared``) and sends the newest
+observed frame, with the ``n_obs_steps - 1`` frames before it packed into ``observation.state`` for a base
+that reads a history (``dcdp_state_history`` on the server side).
 """
 
 from __future__ import annotations

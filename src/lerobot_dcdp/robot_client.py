@@ -12,12 +12,16 @@ On the robot's computer::
         --fps=10 --duration=30 --actions_per_chunk=16
 
 Every tick (``1 / fps`` s) the client reads the robot, hands the raw observation to the
-:class:`~lerobot_dcdp.remote_planner.RemotePlanner`, and asks the DCDP policy (``planning=async``) for the
-corrected action of the chunk being executed: the policy corrects every action with the newest observation
-and the observation its chunk was planned from; when the chunk nears its end it submits the newest
-observation to the planner, which sends it to the server and returns the timed chunk (LeRobot's
-``TimedAction`` list, normalised back with the base's statistics). After ``--duration`` seconds the client
-disconnects the robot and exits 0.
+:class:`~lerobot_dcdp.remote_planner.RemotePlanner` (only on the ticks the policy computes when
+``--policy.ticks_per_step`` > 1, so the base's frames keep its own rate), and asks the DCDP policy
+(``planning=async``) for the corrected action of the chunk being executed: the policy corrects every action
+with the newest observation and the observation its chunk was planned from; when the chunk nears its end it
+submits the newest observation to the planner, which sends it to the server and returns the timed chunk
+(LeRobot's ``TimedAction`` list, normalised back with the base's statistics). After ``--duration`` seconds the
+client disconnects the robot and exits 0. A robot that starts episodes by itself (``pusht_sim`` with
+``--robot.episode_steps``) does not tell the client: the policy is not reset at the boundary, and the
+corrector reads the scene's jump as motion until its next chunk, as LeRobot's stock client keeps executing its
+queue.
 
 Flags follow LeRobot's ``RobotClientConfig`` (``lerobot/async_inference/configs.py``) where they mean the
 same: ``--server_address``, ``--robot.*``, ``--fps``, ``--actions_per_chunk``, ``--chunk_size_threshold``,

@@ -422,7 +422,7 @@ def shown_path(path: str) -> str:
 
 def realtime_section(realtime_dir: Path) -> list[str]:
     """The real-time measurements (issue 23) as report lines: every ``*.md`` in ``realtime_dir``, in name
-    order, as written by the script named in it (``scripts/client_scores.sh``,
+    order, as written by the script that made it (``scripts/client_scores.sh``,
     ``scripts/rollout_deadlines.sh``), headings moved three levels down; none when the folder is absent or
     empty."""
     files = sorted(realtime_dir.glob("*.md")) if realtime_dir.is_dir() else []
@@ -431,10 +431,10 @@ def realtime_section(realtime_dir: Path) -> list[str]:
     parts = [
         "## Real time (issue 23): asynchronous planning and the base on LeRobot's policy server",
         "",
-        f"Not `dcdp-benchmark`'s rollouts: the summaries in `{realtime_dir}`, written by "
+        f"Not `dcdp-benchmark`'s rollouts: the summaries in `{shown_path(str(realtime_dir))}`, written by "
         "`scripts/rollout_deadlines.sh` (`rollout_deadlines_*`) and `scripts/client_scores.sh` "
-        "(`client_scores_*`), copied here unchanged (real-time runs on `pusht_sim`; how to read them: "
-        "`docs/ROLLOUT.md`).",
+        "(`client_scores_*`), copied here with their headings moved down (real-time runs on `pusht_sim`; "
+        "how to read them: `docs/ROLLOUT.md`).",
         "",
     ]
     for f in files:
@@ -516,8 +516,6 @@ def write_report(results: dict, report: Path, json_path: Path, realtime_dir: Pat
                 delayed,
                 "",
             ]
-    if realtime_dir is not None:
-        parts += realtime_section(realtime_dir)
     parts += [
         "| score vs drift | success vs drift |",
         "|---|---|",
@@ -526,5 +524,7 @@ def write_report(results: dict, report: Path, json_path: Path, realtime_dir: Pat
     ]
     if has_delay:
         parts += [f"![score vs delay]({Path('..') / delay_path})", ""]
+    if realtime_dir is not None:  # last: not this benchmark's rollouts
+        parts += realtime_section(realtime_dir)
     report.parent.mkdir(parents=True, exist_ok=True)
     report.write_text("\n".join(parts))

@@ -114,6 +114,7 @@ def set_mode(policy, method: str, delay: int = 0) -> None:
         raise ValueError(f"inference_delay {delay} is out of range for this base: 0..{limit}")
     policy.config.execution = method
     policy.config.inference_delay = delay
+    policy.config.ticks_per_step = 1  # lock-step: every env step is one planned step
     policy.reset()
 
 

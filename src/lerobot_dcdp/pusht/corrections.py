@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -196,6 +197,9 @@ class TeleopTeacher:
     (named like the robot's action, ``x.pos`` / ``y.pos``) is the label.
     """
 
+    #: the env's raw observation keys whose values are shown to a teleoperator that takes feedback
+    FEEDBACK_KEYS = ("agent_pos", "environment_state")
+
     def __init__(self, config, n: int) -> None:
         from lerobot.teleoperators.utils import make_teleoperator_from_config
 
@@ -211,12 +215,12 @@ class TeleopTeacher:
         for t in self.teleops:
             t.connect()
 
-    #: the env's raw observation keys whose values are shown to a teleoperator that takes feedback
-    FEEDBACK_KEYS = ("agent_pos", "environment_state")
+    def check_observation(self, keys: Collection[str]) -> None:
+        """Refuse, before any episode runs, an env whose raw observations lack what a teleoperator that takes
+        feedback is shown (the agent position and the object keypoints).
 
-    def check_observation(self, keys) -> None:
-        """Refuse, before any episode runs, an env whose raw observations (``keys``) lack what a teleoperator
-        that takes feedback is shown (the agent position and the object keypoints).
+        Args:
+            keys: The keys of the env's raw observation (``env.reset()[0]``).
 
         Raises:
             ValueError: naming the missing keys and the observation type that holds them.

@@ -25,6 +25,10 @@ class PushTSimConfig(RobotConfig):
         seed: Seed of the episode started on ``connect()`` (block pose, goal, random drift); ``None``:
             unseeded. With ``episode_steps``, episode ``k`` (from 0) uses ``seed + k``, the benchmark's one
             episode per seed.
+        realtime: ``True``: simulated time follows the wall clock from the first action on: an action
+            that arrives more than one control step (0.1 s) after the previous one first lets the world
+            run the missed steps under the previous target, as a real robot would. ``False``: lock-step,
+            every ``send_action`` advances the simulation by exactly one control step.
         episode_steps: Simulated steps after which an episode ends and the next one starts (the benchmark's
             300); ``None``: one episode that never ends (the robot keeps running after success).
         end_on_success: With ``episode_steps``, also end an episode at its first success (coverage > 0.95),
@@ -34,10 +38,6 @@ class PushTSimConfig(RobotConfig):
             so that a client that never asks the robot (LeRobot's stock ``RobotClient``) can be scored;
             ``None``: kept in memory only (``PushTSim.episodes``).
         id: LeRobot's robot id (``--robot.id``); default ``pusht_sim``.
-        realtime: ``True``: simulated time follows the wall clock from the first action on: an action
-            that arrives more than one control step (0.1 s) after the previous one first lets the world
-            run the missed steps under the previous target, as a real robot would. ``False``: lock-step,
-            every ``send_action`` advances the simulation by exactly one control step.
     """
 
     perturbation: str = "none"
@@ -63,5 +63,7 @@ class PushTSimConfig(RobotConfig):
         steps = self.episode_steps
         if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
             raise ValueError(f"episode_steps must be an integer >= 1 or None, got {self.episode_steps!r}")
+        if not isinstance(self.end_on_success, bool):
+            raise ValueError(f"end_on_success must be true or false, got {self.end_on_success!r}")
         if self.episodes_path is not None and self.episode_steps is None:
             raise ValueError("episodes_path needs episode_steps (an endless episode never finishes)")

@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -48,7 +47,9 @@ class PushTSim(Robot):
     ``config.episode_steps`` it never ends: the simulation keeps running after success, as a robot would.
     With it, an episode ends after that many steps (or at success, ``end_on_success``), is recorded in
     :attr:`episodes` (and ``config.episodes_path``), and the next starts at once from the next seed: the
-    scene jumps, as it would after a reset between a real robot's episodes; the client is not told.
+    scene jumps, as it would after a reset between a real robot's episodes; the client is not told (in
+    ``realtime`` mode, steps the world runs under a late tick's previous target may cross into the next
+    episode, as they would on a robot).
 
     Attributes:
         actions_sent: ``send_action`` calls since ``connect()``.
@@ -247,11 +248,9 @@ class PushTSim(Robot):
             "success": self._episode_success,
         }
         self.episodes.append(record)
-        if cfg.episodes_path is not None:  # one whole line per write: a reader never sees half a record
+        if cfg.episodes_path is not None:  # one short line per append-mode write; no fsync on the tick
             with open(cfg.episodes_path, "a") as f:
                 f.write(json.dumps(record) + "\n")
-                f.flush()
-                os.fsync(f.fileno())
         logger.info(f"{self} episode {k} ended: {record}")
         self._obs, _ = self._env.reset(seed=None if cfg.seed is None else cfg.seed + k + 1)
         self._start_episode_stats()
