@@ -262,3 +262,6 @@ def test_robot_client_cli(stock_server: str, tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr[-3000:]
     summary = ast.literal_eval(done.stdout.strip().splitlines()[-1])
     assert 20 <= summary["ticks"] <= 31 and summary["chunks"] >= 2, summary
+    # the tick without the robot's own time (the sim steps its world in send_action) is part of the tick
+    assert 0 < summary["max_policy_ms"] <= summary["max_tick_ms"], summary
+    assert 0 < summary["p99_policy_ms"] <= summary["p99_tick_ms"] + 1e-9, summary

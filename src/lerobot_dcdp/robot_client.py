@@ -134,7 +134,9 @@ def run(cfg: DCDPRobotClientConfig, policy=None, robot=None) -> dict[str, float]
     Returns:
         Counters of the run: ``ticks``, ``chunks`` (from the server), ``late_ticks`` (ticks longer than
         ``1 / fps``), ``mean_tick_ms``, ``p99_tick_ms`` and ``max_tick_ms`` (both after the first tick, which
-        waits for the first chunk), ``mean_plan_ms`` (round trips to the server).
+        waits for the first chunk), ``p99_policy_ms`` and ``max_policy_ms`` (the same ticks without the
+        robot's own time in ``get_observation`` and ``send_action``, where a simulated robot steps its world),
+        ``mean_plan_ms`` (round trips to the server).
     """
     import numpy as np
     import torch
@@ -179,6 +181,7 @@ def run(cfg: DCDPRobotClientConfig, policy=None, robot=None) -> dict[str, float]
     act_features = hw_to_dataset_features(robot.action_features, ACTION, use_video=False)
     period = 1.0 / cfg.fps
     tick_s: list[float] = []
+    robot_s: list[float] = []  # per tick: the robot's own time (reading it, sending it the action)
     try:
         planner.connect()  # the server loads the base before the clock starts
         lead = None
@@ -188,14 +191,18 @@ def run(cfg: DCDPRobotClientConfig, policy=None, robot=None) -> dict[str, float]
         end = time.perf_counter() + cfg.duration
         while (start := time.perf_counter()) < end:
             raw = robot.get_observation()
+            read = time.perf_counter() - start
             if not policy.holds_next_tick:  # --policy.ticks_per_step: the base's frames at its own rate
                 planner.observe(raw)
             batch = pre(build_inference_frame(dict(raw), device, obs_features, task=cfg.task or None))
             with torch.no_grad():
                 action = post(policy.select_action(batch))
-            robot.send_action(make_robot_action(action, act_features))
+            command = make_robot_action(action, act_features)
+            sent = time.perf_counter()
+            robot.send_action(command)
             spent = time.perf_counter() - start
             tick_s.append(spent)
+            robot_s.append(read + start + spent - sent)
             time.sleep(max(0.0, period - spent))
     finally:
         planner.close()
@@ -203,6 +210,8 @@ def run(cfg: DCDPRobotClientConfig, policy=None, robot=None) -> dict[str, float]
             robot.disconnect()
     ticks = np.asarray(tick_s) * 1000
     after_first = ticks[1:] if len(ticks) > 1 else ticks
+    policy_ms = ticks - np.asarray(robot_s) * 1000
+    policy_after_first = policy_ms[1:] if len(ticks) > 1 else policy_ms
     summary = {
         "ticks": len(ticks),
         "chunks": planner.chunks_taken,
@@ -210,6 +219,8 @@ def run(cfg: DCDPRobotClientConfig, policy=None, robot=None) -> dict[str, float]
         "mean_tick_ms": float(ticks.mean()) if len(ticks) else 0.0,
         "p99_tick_ms": float(np.percentile(after_first, 99)) if len(ticks) else 0.0,
         "max_tick_ms": float(after_first.max()) if len(ticks) else 0.0,
+        "p99_policy_ms": float(np.percentile(policy_after_first, 99)) if len(ticks) else 0.0,
+        "max_policy_ms": float(policy_after_first.max()) if len(ticks) else 0.0,
         "mean_plan_ms": 1000 * planner.plan_seconds / max(planner.chunks_taken, 1),
     }
     logger.info("dcdp-robot-client: %s", summary)
