@@ -21,23 +21,7 @@ OUT=${OUT:-runs/client_scores}; PERTURBATION=${PERTURBATION:-constant}; MAGNITUD
 SEED=${SEED:-100000}; CHUNK=${CHUNK:-16}; CLIENTS=${CLIENTS:-stock dcdp dcdp_hold}
 ncpu=$(nproc); export OMP_NUM_THREADS=1 HF_HUB_OFFLINE=1
 mkdir -p "$OUT"; out=$(cd "$OUT" && pwd)
-server=; work=$(mktemp -d); trap 'kill ${server:-} 2>/dev/null || true; rm -rf "$work"' EXIT
-mapfile -t found < <(.venv/bin/python -c "
-import json, os, sys; c = json.load(open(os.path.join(sys.argv[1], 'config.json')))
-b = os.path.normpath(os.path.join(sys.argv[1], c['base_policy_path']))
-print(b); print(json.load(open(os.path.join(b, 'config.json')))['type'])" "$corrector")
-[ ${#found[@]} -eq 2 ] || { echo "cannot read the base of $corrector (config.json)" >&2; exit 1; }
-base=${found[0]}; base_type=${found[1]}
-.venv/bin/dcdp-serve-base --base "$base" --out "$work/served" >/dev/null
-port=$(.venv/bin/python -c "import socket; s = socket.socket(); s.bind(('127.0.0.1', 0)); print(s.getsockname()[1])")
-py=$(pwd)/.venv/bin/python
-(cd "$work" && exec "$py" -m lerobot.async_inference.policy_server --host=127.0.0.1 --port="$port" \
-  --inference_latency=0 >"$work/server.log" 2>&1) &
-server=$!
-# the stock client gives up after ~1.5 s of retries: start the clients only once the server listens
-for _ in $(seq 120); do (exec 3<>"/dev/tcp/127.0.0.1/$port") 2>/dev/null && break; sleep 0.5; done
-(exec 3<>"/dev/tcp/127.0.0.1/$port") 2>/dev/null \
-  || { cp "$work/server.log" "$out/server.log"; echo "policy server did not start: $out/server.log" >&2; exit 1; }
+source scripts/stock_server.sh; start_stock_server "$corrector" "$out"
 # 300 simulated steps of 0.1 s per episode at most, plus a margin for start-up (the server loads the base)
 seconds=$(( episodes * 30 + 20 ))
 robot=(--robot.type=pusht_sim --robot.perturbation="$PERTURBATION" --robot.magnitude="$MAGNITUDE"

@@ -8,16 +8,7 @@ set -euo pipefail
 corrector=${1:-models/pusht-dcdp-state-demos-late}; seconds=${2:-30}; shift $(( $# > 2 ? 2 : $# ))
 rates=("$@"); [ $# -eq 0 ] && rates=(10 30)
 export OMP_NUM_THREADS=1 HF_HUB_OFFLINE=1
-work=$(mktemp -d); trap 'kill $server 2>/dev/null || true; rm -rf "$work"' EXIT
-base=$(.venv/bin/python -c "
-import json, os, sys; c = json.load(open('$corrector/config.json'))
-print(os.path.normpath(os.path.join('$corrector', c['base_policy_path'])))")
-.venv/bin/dcdp-serve-base --base "$base" --out "$work/served" >/dev/null
-port=$(.venv/bin/python -c "import socket; s = socket.socket(); s.bind(('127.0.0.1', 0)); print(s.getsockname()[1])")
-py=$(pwd)/.venv/bin/python
-(cd "$work" && exec "$py" -m lerobot.async_inference.policy_server --host=127.0.0.1 --port="$port" \
-  --inference_latency=0 >"$work/server.log" 2>&1) &
-server=$!
+source scripts/stock_server.sh; start_stock_server "$corrector" runs
 for fps in "${rates[@]}"; do
   echo "fps=$fps"
   .venv/bin/dcdp-robot-client --server_address="127.0.0.1:$port" --robot.type=pusht_sim \
