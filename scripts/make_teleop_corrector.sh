@@ -9,7 +9,8 @@
 #      This is models/pusht-dcdp-state-teleop (T2), which does not help yet.
 # Usage: scripts/make_teleop_corrector.sh [base dir] [output dir] [extra lerobot-train flags]
 # Env: EPISODES (200), STEPS (1000), DATA (data/pusht_teleop), EXECUTION (teacher; open_loop: the base drives
-#      and the person only labels), REPLAN (8: the teleoperator's steps between plans), FEATURES (the keypoints).
+#      and the person only labels), REPLAN (8: the teleoperator's steps between plans), FEATURES (the keypoints),
+#      FOLLOW (false; true: --teleop.follow_block, the person anticipates the block's drift).
 set -euo pipefail
 base=${1:-models/pusht-diffusion-state}; out=${2:-runs/dcdp_teleop}; shift $(( $# > 2 ? 2 : $# ))
 data=${DATA:-data/pusht_teleop}
@@ -17,7 +18,7 @@ export OMP_NUM_THREADS=1 HF_HUB_OFFLINE=1
 if [ ! -f "$data/.dcdp_corrections" ]; then
   .venv/bin/dcdp-record-corrections --root "$data" --repo-id local/pusht_teleop --base "$base" --seed 0 \
     --episodes "${EPISODES:-200}" --teacher teleop --teleop.type=pusht_expert \
-    --teleop.replan_every="${REPLAN:-8}" --execution "${EXECUTION:-teacher}" --batch-size 50
+    --teleop.replan_every="${REPLAN:-8}" --teleop.follow_block="${FOLLOW:-false}" --execution "${EXECUTION:-teacher}" --batch-size 50
 fi
 .venv/bin/lerobot-train --config_path=configs/policy/dcdp_pusht_residual.json \
   --policy.base_policy_path="$base" --dataset.repo_id=local/pusht_teleop --dataset.root="$data" \

@@ -1,7 +1,8 @@
 """The pusht_expert teleoperator driving pusht_perturbed by itself (no policy): success and score per drift.
 
-Usage: .venv/bin/python scripts/teleop_alone.py MAGNITUDE REPLAN_EVERY EPISODES
-  (constant drift at 45 degrees, seeds from 100000, 300 steps max; MAGNITUDE 0 = no drift)
+Usage: .venv/bin/python scripts/teleop_alone.py MAGNITUDE REPLAN_EVERY EPISODES [FOLLOW_BLOCK]
+  (constant drift at 45 degrees, seeds from 100000, 300 steps max; MAGNITUDE 0 = no drift; FOLLOW_BLOCK 1:
+  the teleoperator's --teleop.follow_block=true)
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from lerobot_dcdp.teleoperators import PushTExpert, PushTExpertConfig
 
 def main() -> None:
     magnitude, replan, episodes = float(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
-    teleop = PushTExpert(PushTExpertConfig(replan_every=replan))
+    follow = len(sys.argv) > 4 and sys.argv[4] == "1"
+    teleop = PushTExpert(PushTExpertConfig(replan_every=replan, follow_block=follow))
     teleop.connect()
     success, score, started, steps = [], [], time.time(), 0
     for seed in range(100_000, 100_000 + episodes):
@@ -49,7 +51,7 @@ def main() -> None:
         score.append(best)
         env.close()
     print(
-        f"magnitude {magnitude} replan_every {replan}: success {np.mean(success):.2f} "
+        f"magnitude {magnitude} replan_every {replan} follow_block {follow}: success {np.mean(success):.2f} "
         f"score {np.mean(score):.3f} ({1000 * (time.time() - started) / steps:.1f} ms/step, "
         f"{teleop.plans} plans)"
     )

@@ -108,6 +108,73 @@ def test_the_scripted_teleoperator_completes_a_static_episode_from_observations_
     env.close()
 
 
+def test_follow_deviation_carries_a_target_with_the_blocks_rigid_motion() -> None:
+    from lerobot_dcdp.pusht.geometry import keypoints
+    from lerobot_dcdp.teleoperators.pusht_expert import follow_deviation
+
+    predicted, observed = np.array([200.0, 150.0, 0.3]), np.array([215.0, 140.0, 0.3 + math.pi / 2])
+    # a point fixed to the block (one of its corners) lands on the same corner of the observed block
+    corner_before, corner_after = keypoints(predicted)[2], keypoints(observed)[2]
+    assert np.allclose(follow_deviation(corner_before, predicted, observed), corner_after, atol=1e-9)
+    target = np.array([10.0, 20.0])
+    assert np.allclose(follow_deviation(target, predicted, predicted), target)
+    with pytest.raises(ValueError, match="follow_block must be true or false"):
+        PushTExpertConfig(follow_block="yes")
+
+
+def test_the_exact_sim_drifts_the_block_as_the_perturbed_env_does() -> None:
+    """``ExactSim.drift`` moves the block by that many px before every step, clipped at the arena."""
+    from lerobot_dcdp.pusht.expert import ExactSim
+
+    sim = ExactSim()
+    sim.set_state((60.0, 60.0), (0.0, 0.0), np.array([300.0, 300.0, 0.0]))
+    sim.drift = np.array([2.0, -1.0])
+    poses = sim.run([np.array([60.0, 60.0])] * 5)
+    assert np.allclose([p[:2] for p in poses], [[300 + 2 * k, 300 - k] for k in range(1, 6)], atol=1e-6)
+    sim.set_state((60.0, 60.0), (0.0, 0.0), np.array([440.0, 300.0, 0.0]))  # bar ends at x = 500
+    sim.drift = np.array([2.0, 0.0])
+    assert sim.run([np.array([60.0, 60.0])] * 5)[-1][0] == pytest.approx(502.0 - 60.0)
+
+
+def test_a_following_teleoperator_estimates_the_drift_and_leaves_a_still_scene_alone() -> None:
+    """With ``follow_block`` the expert learns the block's drift from what its own pushes do not explain
+    (constant 2 px/step at 45 degrees: (1.41, 1.41) px/step) and plans with it; on a still scene the estimate
+    stays at zero and the targets stay within a pixel of the plain expert's; without the flag it assumes no
+    drift."""
+    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
+
+    def drive(follow: bool, magnitude: float, steps: int) -> tuple[np.ndarray, list[np.ndarray]]:
+        env = make_perturbed_env(
+            obs_type="environment_state_agent_pos",
+            max_episode_steps=300,
+            perturbation="constant" if magnitude else "none",
+            magnitude=magnitude,
+            direction_deg=45.0,
+        )
+        obs, _ = env.reset(seed=100_000)
+        targets = []
+        with PushTExpert(PushTExpertConfig(replan_every=8, follow_block=follow)) as teleop:
+            for _ in range(steps):
+                teleop.send_feedback(_feedback(obs))
+                action = teleop.get_action()
+                targets.append(np.array([action["x.pos"], action["y.pos"]]))
+                obs, *_ = env.step(targets[-1])
+            estimate = teleop.drift_estimate
+        env.close()
+        return estimate, targets
+
+    drift = 2.0 * np.array([math.cos(math.pi / 4), math.sin(math.pi / 4)])
+    estimate, _ = drive(True, 2.0, 17)  # two plans after the first: the estimate is set at each
+    assert np.allclose(estimate, drift, atol=0.05)
+    assert np.allclose(drive(False, 2.0, 17)[0], 0.0)
+    still, followed = drive(True, 0.0, 24)
+    assert np.abs(still).max() < 0.05
+    _, plain = drive(False, 0.0, 24)
+    gaps = [np.abs(a - b).max() for a, b in zip(followed, plain, strict=True)]
+    # in contact the plan's prediction (from an agent velocity estimated from two positions) is off by < 1 px
+    assert max(gaps) < 1.5 and float(np.mean(gaps)) < 0.3
+
+
 def test_teleoperator_is_discovered_like_the_robot() -> None:
     """LeRobot's plugin discovery and teleoperator factory build it from ``--teleop.type=pusht_expert``."""
     code = (

@@ -25,6 +25,8 @@ from lerobot_dcdp.pusht.geometry import (
     EDGES_T,
     GOAL_POSE,
     LOCAL_KP,
+    block_vertices,
+    clip_offset,
     densify,
     distance_to_t,
     keypoint_error,
@@ -44,6 +46,9 @@ class ExactSim:
 
         self.env = PushTEnv(obs_type="state")
         self.env.reset(seed=0)
+        #: Block translation (px) applied before every step's physics, clipped to the arena as
+        #: ``pusht_perturbed`` does: the expert's model of a constant drift. (0, 0): none.
+        self.drift = np.zeros(2)
 
     def set_state(self, agent_pos, agent_vel, block_pose, block_vel=(0.0, 0.0), block_w=0.0) -> None:
         e = self.env
@@ -68,8 +73,12 @@ class ExactSim:
     def run(self, actions: list[np.ndarray]) -> list[np.ndarray]:
         """Block poses after each env step of ``actions``."""
         agent, space, block = self.env.agent, self.env.space, self.env.block
+        drifting = bool(self.drift.any())
         poses = []
         for ax, ay in actions:
+            if drifting:
+                offset, _ = clip_offset(block_vertices(block.position, block.angle), self.drift)
+                block.position = (block.position[0] + offset[0], block.position[1] + offset[1])
             for _ in range(N_SUBSTEPS):
                 px, py = agent.position
                 vx, vy = agent.velocity
@@ -200,10 +209,14 @@ class ScriptedExpert:
         return [np.clip(w, 22.0, 490.0) for w in wps]
 
     # ------------------------------------------------------------------ planning
-    def plan(self, prev_target, agent_pos, agent_vel, pose, block_vel=(0.0, 0.0), block_w=0.0):
-        """Best action sequence from this state. Returns (score, actions)."""
+    def plan(
+        self, prev_target, agent_pos, agent_vel, pose, block_vel=(0.0, 0.0), block_w=0.0, drift=(0.0, 0.0)
+    ):
+        """Best action sequence from this state, the block drifting by ``drift`` px per step meanwhile.
+        Returns (score, actions)."""
 
         cfg, sim = self.cfg, self.sim
+        sim.drift = np.asarray(drift, dtype=float)
         err0 = keypoint_error(pose)
         agent = np.asarray(agent_pos, float)
         r0 = rot(pose[2])

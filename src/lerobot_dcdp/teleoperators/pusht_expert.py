@@ -6,7 +6,9 @@ A person correcting a robot watches the scene; this teleoperator watches it thro
 returns the next target ``{"x.pos", "y.pos"}`` of a plan made by :class:`~lerobot_dcdp.pusht.expert.
 ScriptedExpert` from that observation alone -- the block pose fitted to the keypoints, the agent's velocity
 from its last two positions -- re-planned every ``replan_every`` steps. It never reads a simulator, so it
-drives the ``pusht_sim`` robot, a ``pusht`` gym env or recorded observations alike.
+drives the ``pusht_sim`` robot, a ``pusht`` gym env or recorded observations alike. With ``follow_block``
+the targets sent between plans move with the block's deviation from the pose its plan predicted for that step
+(:func:`follow_deviation`), and each plan simulates the block drifting as estimated from those deviations.
 """
 
 from __future__ import annotations
@@ -40,12 +42,26 @@ def block_pose_from_keypoints(keypoints: np.ndarray) -> np.ndarray:
     return np.array([position[0], position[1], theta])
 
 
+def follow_deviation(target: np.ndarray, predicted: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """``target`` carried along the rigid motion that takes the block from its ``predicted`` pose
+    ``(x, y, theta)`` to its ``observed`` one: ``R(theta_o - theta_p) (target - p_p) + p_o``."""
+    c, s = math.cos(observed[2] - predicted[2]), math.sin(observed[2] - predicted[2])
+    d = np.asarray(target, dtype=float) - predicted[:2]
+    return np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]]) + observed[:2]
+
+
 class PushTExpert(Teleoperator):
     """Scripted PushT expert as a teleoperator; see the module docstring.
 
     Attributes:
         plans: Plans made since ``connect()`` (or :meth:`reset`).
     """
+
+    @property
+    def drift_estimate(self) -> np.ndarray:
+        """The block's motion per step (px, x/y) that the expert's pushes do not explain, as estimated at its
+        last plan and assumed by it (``follow_block`` only; zeros otherwise)."""
+        return self._drift.copy()
 
     config_class = PushTExpertConfig
     name = "pusht_expert"
@@ -88,6 +104,8 @@ class PushTExpert(Teleoperator):
     def reset(self) -> None:
         """Forget the current plan and the observations seen (call at the start of every episode)."""
         self._queue: list[np.ndarray] = []
+        self._predicted: list[np.ndarray] | None = None  # block pose after each planned action
+        self._drift = np.zeros(2)  # the block's motion per step that pushing does not explain (px)
         self._since_plan = 0
         self._agent: np.ndarray | None = None
         self._prev_agent: np.ndarray | None = None
@@ -120,6 +138,12 @@ class PushTExpert(Teleoperator):
         if not self._queue or self._since_plan >= self.config.replan_every:
             self._plan()
         target = self._queue.pop(0)
+        if self.config.follow_block and self._predicted and self._since_plan > 0:
+            predicted, observed = (
+                self._predicted[self._since_plan - 1],
+                block_pose_from_keypoints(self._keypoints),
+            )
+            target = np.clip(follow_deviation(target, predicted, observed), 20, 492)
         self._since_plan += 1
         self._last_target = target
         return {AGENT_NAMES[0]: float(target[0]), AGENT_NAMES[1]: float(target[1])}
@@ -128,12 +152,20 @@ class PushTExpert(Teleoperator):
         from lerobot_dcdp.pusht.geometry import densify
 
         pose = block_pose_from_keypoints(self._keypoints)
+        if self.config.follow_block and self._predicted and self._since_plan > 0:
+            # the unexplained motion since the last plan, per step, adds to the drift the plan assumed
+            unexplained = pose[:2] - self._predicted[self._since_plan - 1][:2]
+            self._drift = self._drift + unexplained / self._since_plan
         vel = (0.0, 0.0) if self._prev_agent is None else tuple((self._agent - self._prev_agent) / CONTROL_DT)
         prev = self._agent if self._last_target is None else self._last_target
-        score, acts = self._expert.plan(prev, tuple(self._agent), vel, pose)
+        score, acts = self._expert.plan(prev, tuple(self._agent), vel, pose, drift=self._drift)
+        self._predicted = None
         if score <= 0 or not acts:  # no push improves the pose: a small random step to escape
             goal = np.clip(self._agent + self._expert.rng.normal(0, 30, 2), 20, 492)
             acts = densify(prev, [goal], self.config.max_step)
+        elif self.config.follow_block:  # the block's pose after each action, on the exact copy
+            self._expert.sim.set_state(self._agent, vel, pose)
+            self._predicted = self._expert.sim.run(acts)
         self._queue = [np.asarray(a, dtype=float) for a in acts]
         self._since_plan = 0
         self.plans += 1
