@@ -10,7 +10,7 @@
 # Usage: scripts/make_teleop_corrector.sh [base dir] [output dir] [extra lerobot-train flags]
 # Env: EPISODES (200), STEPS (1000), DATA (data/pusht_teleop), EXECUTION (teacher; open_loop: the base drives
 #      and the person only labels), REPLAN (8: the teleoperator's steps between plans), FEATURES (the keypoints),
-#      FOLLOW (false; true: --teleop.follow_block, the person anticipates the block's drift).
+#      FOLLOW (false; true: --teleop.follow_block, the person anticipates the block's drift: worse, ANALYSIS T6).
 set -euo pipefail
 base=${1:-models/pusht-diffusion-state}; out=${2:-runs/dcdp_teleop}; shift $(( $# > 2 ? 2 : $# ))
 data=${DATA:-data/pusht_teleop}
