@@ -9,6 +9,8 @@ i.e. max clip(coverage / 0.95, 0, 1), as the benchmark's) and success.
 
 Usage: .venv/bin/python scripts/correction_size.py EPISODES MAGNITUDE [MAGNITUDE ...] -- POLICY [POLICY ...]
   (MAGNITUDE 0 = no drift)
+       .venv/bin/python scripts/correction_size.py --trace SEED STEPS MAGNITUDE POLICY
+  (one episode's first STEPS steps: step in chunk, correction (x, y) px, the block's motion px)
 """
 
 from __future__ import annotations
@@ -19,9 +21,11 @@ import numpy as np
 import torch
 
 
-def run(policy_dir: str, magnitude: float, episodes: int) -> tuple[np.ndarray, np.ndarray, list, list]:
+def run(
+    policy_dir: str, magnitude: float, episodes: int, first_seed: int = 100_000, trace_steps: int = 0
+) -> tuple[np.ndarray, np.ndarray, list, list]:
     """Corrections and the block's motion in that step (px, every step of every episode), scores and
-    successes of one corrector on one drift."""
+    successes of one corrector on one drift (``trace_steps``: print the first steps of each episode)."""
     from lerobot.envs.utils import preprocess_observation
 
     from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
@@ -29,7 +33,7 @@ def run(policy_dir: str, magnitude: float, episodes: int) -> tuple[np.ndarray, n
 
     policy, pre, post = load_policy(policy_dir, None, "dcdp", "observation.environment_state")
     sizes, moves, scores, successes = [], [], [], []
-    for seed in range(100_000, 100_000 + episodes):
+    for seed in range(first_seed, first_seed + episodes):
         env = make_perturbed_env(
             obs_type="environment_state_agent_pos",
             max_episode_steps=300,
@@ -41,7 +45,7 @@ def run(policy_dir: str, magnitude: float, episodes: int) -> tuple[np.ndarray, n
         torch.manual_seed(seed)
         policy.reset()
         best, success = 0.0, False
-        for _ in range(300):
+        for t in range(300):
             batch = preprocess_observation({k: np.asarray(v)[None] for k, v in obs.items()})
             with torch.no_grad():
                 action = post(policy.select_action(pre(dict(batch)))).cpu().numpy()[0]
@@ -51,6 +55,10 @@ def run(policy_dir: str, magnitude: float, episodes: int) -> tuple[np.ndarray, n
             obs, reward, terminated, truncated, info = env.step(action)
             after = np.asarray(obs["environment_state"]).reshape(-1, 2).mean(0)
             moves.append(float(np.linalg.norm(after - before)))
+            if t < trace_steps:
+                d = action - planned
+                print(f"{t:3d} step {policy.last_step} correction ({d[0]:6.1f}, {d[1]:6.1f})", end=" ")
+                print(f"block {moves[-1]:.2f}")
             best = max(best, float(reward))
             success = success or bool(info.get("is_success", False))
             if terminated or truncated:
@@ -62,6 +70,11 @@ def run(policy_dir: str, magnitude: float, episodes: int) -> tuple[np.ndarray, n
 
 
 def main() -> None:
+    torch.set_num_threads(1)
+    if sys.argv[1:2] == ["--trace"]:
+        seed, steps, magnitude = int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
+        run(sys.argv[5], magnitude, 1, first_seed=seed, trace_steps=steps)
+        return
     if "--" not in sys.argv:
         sys.exit(__doc__)
     cut = sys.argv.index("--")
