@@ -28,19 +28,15 @@ def run(
     successes of one corrector on one drift (``trace_steps``: print the first steps of each episode)."""
     from lerobot.envs.utils import preprocess_observation
 
-    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
-    from lerobot_dcdp.pusht.corrections import load_policy
+    from lerobot_dcdp.envs.pusht_perturbed import DEFAULT_DIRECTIONS_DEG
+    from lerobot_dcdp.pusht.corrections import DriftSpec, episode_env, load_policy
 
     policy, pre, post = load_policy(policy_dir, None, "dcdp", "observation.environment_state")
     sizes, moves, scores, successes = [], [], [], []
+    kind = "constant" if magnitude > 0 else "none"
+    drift = DriftSpec(kind, magnitude, 45.0, DEFAULT_DIRECTIONS_DEG, 50)  # the env's own defaults
     for seed in range(first_seed, first_seed + episodes):
-        env = make_perturbed_env(
-            obs_type="environment_state_agent_pos",
-            max_episode_steps=300,
-            perturbation="constant" if magnitude > 0 else "none",
-            magnitude=magnitude,
-            direction_deg=45.0,
-        )
+        env = episode_env(None, drift, 300)  # keypoint observations, as the recorder's episodes
         obs, _ = env.reset(seed=seed)
         torch.manual_seed(seed)
         policy.reset()
