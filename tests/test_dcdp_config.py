@@ -22,6 +22,8 @@ def test_missing_base_is_refused() -> None:
         ("te_weight", 0.0),
         ("backbone", "vit"),
         ("kl_weight", -1.0),
+        ("motion_label", "pushed"),
+        ("motion_full_carry_at", 0.0),
     ],
 )
 def test_bad_values_name_the_field(field: str, value) -> None:

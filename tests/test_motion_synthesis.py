@@ -103,12 +103,13 @@ def test_still_scenes_keep_the_plan_and_moving_ones_move_it(diffusion_base, demo
     assert info["plan_gap"] > 0.0
 
 
-@pytest.mark.parametrize("label", ["observed", "added"])
+@pytest.mark.parametrize("label", ["observed", "added", "graded"])
 def test_synthesised_target_carries_the_plan_with_the_object(diffusion_base, demo_root, label) -> None:
     """What the loss trains toward: the demonstration's action at t carried along with the object's rigid
     motion since plan time -- ``observed``: the whole motion the moved keypoints show (the object_anchored
     rule, pushes included); ``added``: only the synthesised motion (between the demonstration's frame t and
-    the moved one)."""
+    the moved one); ``graded``: the ``added`` target moved toward the ``observed`` one by the share of the
+    way the synthesised motion carried the centroid toward ``motion_full_carry_at``."""
     policy = _policy(
         diffusion_base,
         demo_root,
@@ -117,6 +118,7 @@ def test_synthesised_target_carries_the_plan_with_the_object(diffusion_base, dem
         motion_max_turn_deg=2.0,
         motions_per_sample=2,
         motion_label=label,
+        motion_full_carry_at=10.0,
     )
     batch = next(training_batches(policy, demo_root, batch_size=6))
     torch.manual_seed(3)
@@ -132,10 +134,17 @@ def test_synthesised_target_carries_the_plan_with_the_object(diffusion_base, dem
     before = policy.normalizer(KEY, original, inverse=True).reshape(kp.shape)
     added = rigid_fit_2d(before[:, -1], kp[:, -1])
     assert ((added[1].norm(dim=-1) > 1e-3) == (step > 0)).all()  # no motion yet at the plan's own step
-    rot, t = added if label == "added" else rigid_fit_2d(kp[rows, k - 1 - step], kp[:, -1])
     raw = policy.normalizer("action", plan[rows, step], inverse=True)
-    expected = policy.normalizer("action", anchor_actions(raw, rot, t))
+    with_added = anchor_actions(raw, *added)
+    with_whole = anchor_actions(raw, *rigid_fit_2d(kp[rows, k - 1 - step], kp[:, -1]))
+    share = {"added": torch.zeros(12), "observed": torch.ones(12)}.get(label)
+    if share is None:
+        share = ((kp[:, -1].mean(1) - before[:, -1].mean(1)).norm(dim=-1) / 10.0).clamp(0, 1)
+        assert (share > 0.05).any() and (share < 0.95).any() and (share[step == 0] == 0).all()
+    expected = policy.normalizer("action", with_added + share.unsqueeze(-1) * (with_whole - with_added))
     torch.testing.assert_close(target, expected, atol=1e-4, rtol=1e-4)
+    if label == "graded":  # a share strictly between the two labels where the push moved the object
+        assert not torch.allclose(target, policy.normalizer("action", with_whole), atol=1e-4)
     # the plan's step s is the demonstration's action at t (index H-1 of actions t-H+1 .. t+H-1)
     actions = batch["action"].repeat_interleave(2, 0)
     torch.testing.assert_close(plan[rows, step], actions[:, 7])

@@ -18,7 +18,7 @@ PLANNING_CLOCKS = ("wall", "steps")
 BASE_LOCATIONS = ("local", "remote")
 #: Execution modes that run one chunk for several ticks (the ones asynchronous planning applies to).
 CHUNK_MODES = ("dcdp", "open_loop", "object_anchored")
-MOTION_LABELS = ("observed", "added")
+MOTION_LABELS = ("observed", "added", "graded")
 
 
 def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
@@ -126,7 +126,13 @@ class DCDPConfig(PreTrainedConfig):
             keypoints show it (the ``object_anchored`` rule, the object's own motion under the push included;
             still samples keep the plan: the gated teacher of the recorded recipe). ``added``: only the
             synthesised motion (measured to follow the drift alone, which scores below open loop:
-            docs/ANALYSIS.md).
+            docs/ANALYSIS.md). ``graded``: the synthesised motion plus a share of the object's own motion in
+            the demonstration (its motion under the push) that grows linearly with how far the synthesised
+            motion has carried the object's centroid, from none to all of it at ``motion_full_carry_at``: a
+            slowly moving world keeps the plan's pushes, a fast one gets the ``observed`` label.
+        motion_full_carry_at: ``motion_label=graded`` only: the displacement of the object's centroid by the
+            synthesised motion (raw anchor units) from which the label carries the object's whole observed
+            motion. ``None``: ``n_action_steps / 2`` steps of the largest synthesised speed.
         motions_per_sample: ``residual`` on plain demonstrations: independent motions drawn per dataset
             sample (the batch is repeated this many times).
         train_max_delay: ``residual`` on plain demonstrations: chunks that arrive late. Each synthesised
@@ -186,6 +192,7 @@ class DCDPConfig(PreTrainedConfig):
     motion_max_turn_deg: float = 0.5
     motion_static_fraction: float = 0.25
     motion_label: str = "observed"
+    motion_full_carry_at: float | None = None
     motions_per_sample: int = 4
     train_max_delay: int = 0
 
@@ -265,6 +272,10 @@ class DCDPConfig(PreTrainedConfig):
         if self.motion_max_speed is not None and not self.motion_max_speed >= 0:
             raise ValueError(
                 f"motion_max_speed must be >= 0 (or None for the default), got {self.motion_max_speed}"
+            )
+        if self.motion_full_carry_at is not None and not self.motion_full_carry_at > 0:
+            raise ValueError(
+                f"motion_full_carry_at must be > 0 (or None for the default), got {self.motion_full_carry_at}"
             )
         if not self.motion_max_turn_deg >= 0:
             raise ValueError(f"motion_max_turn_deg must be >= 0, got {self.motion_max_turn_deg}")

@@ -93,6 +93,19 @@ def move_window(
     return move_points(keypoints, rot, t), rot[:, -1], t[:, -1]
 
 
+def push_share(world_shift: Tensor, full_at: float) -> Tensor:
+    """The share of the object's own (push-driven) motion a ``graded`` label carries the plan with.
+
+    Args:
+        world_shift: (B,) how far the synthesised motion has carried the object's centroid (raw units).
+        full_at: The displacement from which the whole observed motion is carried.
+
+    Returns:
+        (B,) ``clamp(world_shift / full_at, 0, 1)``: none for a still world, all of it from ``full_at`` on.
+    """
+    return (world_shift / full_at).clamp(0.0, 1.0)
+
+
 def keypoint_extent(stats: dict[str, Tensor]) -> float:
     """The larger of the x and y spans of flat (x0, y0, x1, y1, ...) keypoint statistics: max - min when
     the statistics hold them, else four standard deviations."""

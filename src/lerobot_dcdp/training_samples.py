@@ -17,7 +17,7 @@ from torch import Tensor
 from lerobot_dcdp.base_normalizer import BaseNormalizer
 from lerobot_dcdp.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.correction import anchor_actions, rigid_fit_2d
-from lerobot_dcdp.motion_synthesis import draw_motions, keypoint_extent, move_window
+from lerobot_dcdp.motion_synthesis import draw_motions, keypoint_extent, move_window, push_share
 
 
 @dataclass
@@ -128,6 +128,13 @@ class CorrectionSamples:
             )
         return 0.006 * keypoint_extent(stats)
 
+    def motion_full_carry_at(self) -> float:
+        """``motion_full_carry_at``, or its default: ``n_action_steps / 2`` steps of the largest speed."""
+        cfg = self.config
+        if cfg.motion_full_carry_at is not None:
+            return cfg.motion_full_carry_at
+        return 0.5 * cfg.n_action_steps * self.motion_max_speed()
+
     def synthesised(self, batch: dict[str, Tensor]) -> CorrectionSample:
         """A plain demonstration sample with synthesised object motion (motion_synthesis.py).
 
@@ -136,7 +143,8 @@ class CorrectionSamples:
         as the plan (or the base's chunk planned at t-s-d with its first d entries skipped, when
         ``plan_feature`` holds one per frame), its own rigid motion of the anchor keypoints through the
         window, and as the target the plan's action s carried with the object's motion since plan time
-        (``motion_label``: the whole motion the moved keypoints show, or only the synthesised one).
+        (``motion_label``: the whole motion the moved keypoints show, only the synthesised one, or the
+        synthesised one plus a share of the rest graded by how far the world moved the object).
         """
         cfg, norm = self.config, self.norm
         horizon, key = cfg.n_action_steps, cfg.anchor_feature
@@ -198,13 +206,21 @@ class CorrectionSamples:
             cfg.motion_static_fraction,
             device=kp.device,
         )
-        moved, rot, shift = move_window(kp.reshape(b, k, -1, 2), k - 1 - age, velocity, turn)
+        points = kp.reshape(b, k, -1, 2)
+        moved, rot, shift = move_window(points, k - 1 - age, velocity, turn)
         batch[key] = norm(key, moved.reshape(kp.shape))
-        if cfg.motion_label == "observed":  # the whole motion the moved keypoints show since plan time
-            rot, shift = rigid_fit_2d(moved[rows, k - 1 - age], moved[:, -1])
         plan_s = plan[rows, step]
+        raw_plan_s = norm(ACTION, plan_s, inverse=True)
+        carried = anchor_actions(raw_plan_s, rot, shift)  # with the synthesised motion alone (``added``)
+        if cfg.motion_label != "added":  # the whole motion the moved keypoints show since plan time
+            whole = anchor_actions(raw_plan_s, *rigid_fit_2d(moved[rows, k - 1 - age], moved[:, -1]))
+            share = torch.ones_like(step, dtype=whole.dtype)
+            if cfg.motion_label == "graded":
+                world_shift = (moved[:, -1].mean(1) - points[:, -1].mean(1)).norm(dim=-1)
+                share = push_share(world_shift, self.motion_full_carry_at())
+            carried = carried + share.unsqueeze(-1) * (whole - carried)
+        carried = norm(ACTION, carried)
         moving = (velocity != 0).any(-1) | (turn != 0)
-        carried = norm(ACTION, anchor_actions(norm(ACTION, plan_s, inverse=True), rot, shift))
         target = torch.where(moving.unsqueeze(-1), carried, plan_s)  # a still scene keeps the plan exactly
         _, valid = self.current_action(batch)
         return CorrectionSample(batch, plan, step, age, target, valid, synthesised=True)
