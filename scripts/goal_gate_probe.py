@@ -19,29 +19,18 @@ import numpy as np
 import torch
 
 
-def run(args: argparse.Namespace, method: str, gate: bool, seed_start: int = 100_000) -> tuple[float, float]:
+def run(args: argparse.Namespace, method: str, gate: bool) -> tuple[float, float]:
     """Mean score and success of one (method, gate) on ``args.condition``."""
-    from lerobot.envs.utils import preprocess_observation
+    from near_misses import condition_rollout
 
-    from lerobot_dcdp.benchmark.rollout import CONDITIONS, _stack_obs
-    from lerobot_dcdp.benchmark.run import load_model, set_mode
-    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
     from lerobot_dcdp.lockstep import run_lockstep
 
-    policy, pre, post, _ = load_model(args.policy)
-    cond = {c.name: c for c in CONDITIONS}[args.condition]
-    seeds = list(range(seed_start, seed_start + args.episodes))
-    set_mode(policy, method)
-    envs = [
-        make_perturbed_env(obs_type="environment_state_agent_pos", max_episode_steps=300, **cond.env_kwargs())
-        for _ in seeds
-    ]
+    rollout = condition_rollout(args.policy, args.condition, args.episodes, method)
+    policy, post, corrected, envs, seeds = rollout
     near = np.zeros(len(seeds), dtype=bool)  # block near the goal after the last step
-    torch.manual_seed(seeds[0])
-    policy.reset()
 
     def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
-        action = post(policy.select_action(pre(preprocess_observation(_stack_obs(obs))))).cpu().numpy()
+        action = corrected(obs, active)
         if gate and policy.planned_chunk is not None:
             planned = post(policy.planned_chunk).cpu().numpy()[:, policy.last_step]
             action = np.where(near[:, None], planned, action)  # every env's row (ended ones ignored)

@@ -19,13 +19,17 @@ import numpy as np
 import torch
 
 
-def run(policy_path: str, condition: str, episodes: int, method: str, seed_start: int = 100_000) -> dict:
+def condition_rollout(
+    policy_path: str, condition: str, episodes: int, method: str, seed_start: int = 100_000
+) -> tuple:
+    """The benchmark's envs for one condition and the corrector in one execution mode, seeded as the benchmark
+    seeds a batch. Returns ``(policy, post, act, envs, seeds)``: ``post`` the corrector's post-processor,
+    ``act`` the policy call ``run_lockstep`` takes."""
     from lerobot.envs.utils import preprocess_observation
 
     from lerobot_dcdp.benchmark.rollout import CONDITIONS, _stack_obs
     from lerobot_dcdp.benchmark.run import load_model, set_mode
     from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
-    from lerobot_dcdp.lockstep import run_lockstep
 
     policy, pre, post, _ = load_model(policy_path)
     cond = {c.name: c for c in CONDITIONS}[condition]
@@ -35,14 +39,22 @@ def run(policy_path: str, condition: str, episodes: int, method: str, seed_start
         make_perturbed_env(obs_type="environment_state_agent_pos", max_episode_steps=300, **cond.env_kwargs())
         for _ in seeds
     ]
-    best = {i: (-1.0, 0.0, 0.0) for i in range(len(seeds))}
-    last_pose = {i: None for i in range(len(seeds))}
-    pushed_in = {}
     torch.manual_seed(seeds[0])  # as the benchmark seeds a batch
     policy.reset()
 
     def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
         return post(policy.select_action(pre(preprocess_observation(_stack_obs(obs))))).cpu().numpy()
+
+    return policy, post, act, envs, seeds
+
+
+def run(policy_path: str, condition: str, episodes: int, method: str) -> dict:
+    from lerobot_dcdp.lockstep import run_lockstep
+
+    _, _, act, envs, seeds = condition_rollout(policy_path, condition, episodes, method)
+    best = {i: (-1.0, 0.0, 0.0) for i in range(len(seeds))}
+    last_pose = {i: None for i in range(len(seeds))}
+    pushed_in = {}
 
     def on_step(i: int, obs: dict, reward: float, info: dict) -> None:
         pose = np.asarray(info["block_pose"], dtype=float)

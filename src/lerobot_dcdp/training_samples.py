@@ -214,11 +214,11 @@ class CorrectionSamples:
         carried = anchor_actions(raw_plan_s, rot, shift)  # with the synthesised motion alone (``added``)
         if cfg.motion_label != "added":  # the whole motion the moved keypoints show since plan time
             whole = anchor_actions(raw_plan_s, *rigid_fit_2d(moved[rows, k - 1 - age], moved[:, -1]))
-            share = torch.ones_like(step, dtype=whole.dtype)
-            if cfg.motion_label == "graded":
+            if cfg.motion_label == "graded":  # toward it by how far the world moved the centroid
                 world_shift = (moved[:, -1].mean(1) - points[:, -1].mean(1)).norm(dim=-1)
-                share = push_share(world_shift, self.motion_full_carry_at())
-            carried = carried + share.unsqueeze(-1) * (whole - carried)
+                share = push_share(world_shift, self.motion_full_carry_at()).unsqueeze(-1)
+                whole = carried + share * (whole - carried)
+            carried = whole
         carried = norm(ACTION, carried)
         moving = (velocity != 0).any(-1) | (turn != 0)
         target = torch.where(moving.unsqueeze(-1), carried, plan_s)  # a still scene keeps the plan exactly
