@@ -5,8 +5,11 @@
 # object being handled. The corrector that helps (correction=residual, the default) learns from
 #   - an object's xy keypoints among the observations (ANCHOR=<observation key>): stage 1 synthesises the
 #     object's motion on these demonstrations (docs/METHOD.md); FastUMI data has none unless you add them;
-#   - or recorded corrections of the frozen base's stale chunks, which on a real robot means a person
-#     correcting it (HG-DAgger style) -- not provided by this project yet for real robots.
+#   - or a person's corrections of the frozen base on the robot (HG-DAgger style): record a session with
+#     `lerobot-rollout --strategy.type=dagger` and turn it into a corrections dataset with
+#     `dcdp-dagger-to-corrections --base <base> ...` (docs/METHOD.md), then train on that with lerobot-train.
+#     Correct, do not drive: move the robot's own motion where the object went, let it run where nothing moved
+#     (a person driving with their own motions gives labels a corrector cannot use: docs/ANALYSIS.md, T1-T7).
 # Without ANCHOR the script converts the data, trains the base, and stops, saying so; it does not train the
 # paper's reconstruction recipe (measured to make bases worse: docs/ANALYSIS.md). Add it yourself with
 # DCDP_FLAGS=--policy.correction=reconstruct ANCHOR=none if you want that row anyway.

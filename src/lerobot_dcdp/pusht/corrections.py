@@ -36,9 +36,11 @@ Teachers:
   each round to its own dataset and aggregate them with LeRobot's ``merge_datasets`` (the plan column is flat
   so the stock merge copies it).
 - ``teleop``: a LeRobot teleoperator's action for the current observation (``--teleop.type=...`` and its
-  ``--teleop.*`` flags): a person's corrections, HG-DAgger style. The registered ``pusht_expert``
-  teleoperator (the scripted expert, :mod:`lerobot_dcdp.teleoperators`) stands in for the person; it sees the
-  scene through ``send_feedback`` (the ``pusht_sim`` observation names). One teleoperator per parallel env.
+  ``--teleop.*`` flags): a person's corrections, HG-DAgger style. Two scripted stand-ins for the person are
+  registered (:mod:`lerobot_dcdp.teleoperators`): ``pusht_nudge`` corrects the robot's own command (shown to
+  it with its chunk step) by carrying it with the block once the world moves the block; ``pusht_expert``
+  drives with pushes of its own. They see the scene through ``send_feedback`` (the ``pusht_sim`` observation
+  names). One teleoperator per parallel env.
 - ``policy``: a teacher policy's action for the current observation (``--teacher-policy=<pretrained_model
   dir>``, any LeRobot policy type, with its own processors): a privileged or bigger policy.
 
@@ -192,9 +194,11 @@ def drift_offset_labels(
 class TeleopTeacher:
     """Labels from LeRobot teleoperators, one per parallel env (each keeps its own state).
 
-    Every step each teleoperator is shown the env's observation through ``send_feedback`` (as the
-    ``pusht_sim`` robot names it, when the teleoperator declares feedback features) and its ``get_action()``
-    (named like the robot's action, ``x.pos`` / ``y.pos``) is the label.
+    Every step each teleoperator is shown, through ``send_feedback``, those of its declared feedback features
+    the recorder has: the env's observation (as the ``pusht_sim`` robot names it), the robot's command this
+    step (``command.x.pos`` / ``command.y.pos``, what a leader arm that follows the robot reports) and its
+    index in the running chunk (``chunk_step``). Its ``get_action()`` (named like the robot's action,
+    ``x.pos`` / ``y.pos``) is the label.
     """
 
     #: the env's raw observation keys whose values are shown to a teleoperator that takes feedback
@@ -225,8 +229,19 @@ class TeleopTeacher:
         Raises:
             ValueError: naming the missing keys and the observation type that holds them.
         """
-        if not self.teleops[0].feedback_features:
+        from lerobot_dcdp.robots.pusht_sim import AGENT_NAMES, KEYPOINT_NAMES
+        from lerobot_dcdp.teleoperators.pusht_nudge import CHUNK_STEP, COMMAND_NAMES
+
+        wanted = set(self.teleops[0].feedback_features)
+        if not wanted:
             return
+        unknown = sorted(wanted - set(AGENT_NAMES + KEYPOINT_NAMES + COMMAND_NAMES + (CHUNK_STEP,)))
+        if unknown:
+            raise ValueError(
+                f"teleoperator {self.teleops[0].name!r} asks for feedback {unknown}, which the PushT "
+                f"recorder does not have (it shows {list(AGENT_NAMES + KEYPOINT_NAMES)}, "
+                f"{list(COMMAND_NAMES)} and {CHUNK_STEP!r})"
+            )
         missing = [k for k in self.FEEDBACK_KEYS if k not in keys]
         if missing:
             raise ValueError(
@@ -240,16 +255,24 @@ class TeleopTeacher:
             if hasattr(t, "reset"):
                 t.reset()
 
-    def __call__(self, obs: list[dict], batch: dict, active: np.ndarray) -> np.ndarray:
+    def __call__(
+        self, obs: list[dict], batch: dict, active: np.ndarray, command: np.ndarray, chunk_step: int
+    ) -> np.ndarray:
+        """Each active env's teleoperator action (N, 2) after showing it the scene and the robot's
+        ``command`` (N, 2) at ``chunk_step`` of the running chunk."""
         from lerobot_dcdp.robots.pusht_sim import AGENT_NAMES, KEYPOINT_NAMES
+        from lerobot_dcdp.teleoperators.pusht_nudge import CHUNK_STEP, COMMAND_NAMES
 
         out = np.zeros((len(obs), len(AGENT_NAMES)), dtype=np.float32)
         for i in np.flatnonzero(active):
             t = self.teleops[i]
-            if t.feedback_features:
+            wanted = t.feedback_features
+            if wanted:
                 feedback = dict(zip(AGENT_NAMES, obs[i]["agent_pos"].tolist(), strict=True))
                 feedback.update(zip(KEYPOINT_NAMES, obs[i]["environment_state"].tolist(), strict=True))
-                t.send_feedback(feedback)
+                feedback.update(zip(COMMAND_NAMES, np.asarray(command[i], dtype=float).tolist(), strict=True))
+                feedback[CHUNK_STEP] = int(chunk_step)
+                t.send_feedback({k: v for k, v in feedback.items() if k in wanted})
             action = t.get_action()
             out[i] = [action[k] for k in AGENT_NAMES]
         return out
@@ -283,7 +306,11 @@ class PolicyTeacher:
         self.policy.reset()
 
     @torch.no_grad()
-    def __call__(self, obs: list[dict], batch: dict, active: np.ndarray) -> np.ndarray:
+    def __call__(
+        self, obs: list[dict], batch: dict, active: np.ndarray, command: np.ndarray, chunk_step: int
+    ) -> np.ndarray:
+        """The teacher policy's action (N, A) for the batched observation (``command``, ``chunk_step``:
+        unused, the policy sees only the observation)."""
         return self.post(self.policy.select_action(self.pre(dict(batch)))).cpu().numpy().astype(np.float32)
 
     def close(self) -> None:
@@ -309,9 +336,10 @@ def rollout_corrections(
     """Run one batch of episodes (lock-step) and return each episode's frames with teacher labels
     (``weights``: per episode, the share of the teacher's correction in the label; default 1;
     ``teacher``: ``drift_offset`` labels with the applied drift, ``teleop`` / ``policy`` with
-    ``online_teacher(obs, batch, active)``'s action for each step (executed instead of the policy's when
-    ``teacher_drives``), any other with the anchoring of ``policy.config.anchor_feature``; ``env_config``: a
-    LeRobot ``EnvConfig``, default ``pusht_perturbed`` with keypoint observations: :func:`episode_env`)."""
+    ``online_teacher(obs, batch, active, command, chunk_step)``'s action for each step (executed instead
+    of the policy's when ``teacher_drives``), any other with the anchoring of
+    ``policy.config.anchor_feature``; ``env_config``: a LeRobot ``EnvConfig``, default ``pusht_perturbed``
+    with keypoint observations: :func:`episode_env`)."""
     from lerobot.envs.utils import preprocess_observation
 
     from lerobot_dcdp.lockstep import run_lockstep
@@ -340,7 +368,9 @@ def rollout_corrections(
                 "env's observation type that holds them (e.g. --env.obs_type=environment_state_agent_pos)"
             )
         action = post(policy.select_action(pre(dict(raw)))).cpu().numpy()
-        taught = None if online_teacher is None else online_teacher(obs, raw, active)
+        taught = None
+        if online_teacher is not None:
+            taught = online_teacher(obs, raw, active, command=action, chunk_step=policy.last_step)
         if taught is not None and teacher_drives:
             action = taught
         plan = post(policy.planned_chunk).cpu().numpy()
