@@ -2,7 +2,8 @@
 
 Usage: python scripts/compare_cells.py results/benchmark.json diffusion runs/screens/x.json demos \
            --methods open_loop object_anchored dcdp --conditions static constant_2.0
-Prints, per condition, the score and success of each (file, label, method) on the common seeds.
+Prints, per condition, the score and success of each (file, label, method) on the common seeds, and each new
+method minus each stored method, paired by seed (score and success points, with their standard errors).
 """
 
 from __future__ import annotations
@@ -37,13 +38,31 @@ def main() -> None:
         rows = [r for r in rows if r[2]]
         seeds = set.intersection(*(set(_seeds(c)) for _, _, c in rows))
         print(f"{cond} ({len(seeds)} common seeds)")
+        got = {}
         for label, method, cell in rows:
-            keep = [i for i, s in enumerate(_seeds(cell)) if s in seeds]
-            r = np.asarray(cell["max_rewards"])[keep]
-            ok = np.asarray(cell["successes"], dtype=float)[keep]
+            pairs = zip(cell["max_rewards"], cell["successes"], strict=True)
+            by_seed = dict(zip(_seeds(cell), pairs, strict=True))
+            r = np.asarray([by_seed[s][0] for s in sorted(seeds)], dtype=float)
+            ok = np.asarray([by_seed[s][1] for s in sorted(seeds)], dtype=float)
+            got[label, method] = r, ok
             se = r.std(ddof=1) / np.sqrt(len(r)) if len(r) > 1 else 0.0
             score = f"score {r.mean():.3f} +- {se:.3f}"
             print(f"  {label:>10s} {method:16s} {score}  success {100 * ok.mean():3.0f} %")
+        for method in a.new_methods:
+            if (a.new_label, method) not in got or len(seeds) < 2:
+                continue
+            r_new, ok_new = got[a.new_label, method]
+            for ref in a.methods:
+                if (a.base_label, ref) not in got:
+                    continue
+                dr = r_new - got[a.base_label, ref][0]
+                dok = 100 * (ok_new - got[a.base_label, ref][1])
+                n = len(dr)
+                print(
+                    f"    {a.new_label} {method} - {a.base_label} {ref}: score {dr.mean():+.3f} +- "
+                    f"{dr.std(ddof=1) / np.sqrt(n):.3f}, success {dok.mean():+.0f} +- "
+                    f"{dok.std(ddof=1) / np.sqrt(n):.0f} points (paired)"
+                )
 
 
 if __name__ == "__main__":

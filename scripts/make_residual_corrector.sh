@@ -11,7 +11,10 @@
 #      flags -> <output dir>_dagger, the shipped one (attempt 12).
 # Usage: scripts/make_residual_corrector.sh [base dir] [output dir] [extra lerobot-train flags]
 # Env: TEACHER (anchored_when_drifting), STATIC_FRACTION (0.3), FEATURES (keypoints + agent), EPISODES (200),
-#      STEPS (1000), DATA (data/pusht_corrections; the DAgger round writes ${DATA}_dagger), DAGGER (1 or 0).
+#      STEPS (1000), DATA (data/pusht_corrections; the DAgger round writes ${DATA}_dagger), DAGGER (1 or 0),
+#      RECORD_FLAGS (extra dcdp-record-corrections flags, e.g. "--max-delay 4 --execution open_loop" with the
+#      lerobot-train flag --policy.train_max_delay=4: chunks up to 4 steps late, the base driving; see
+#      docs/ANALYSIS.md, "Late chunks in the recorder").
 #      The issue-9 corrector (attempt 5): TEACHER=object_anchored STATIC_FRACTION=0.1
 #      FEATURES='["observation.environment_state"]' DAGGER=0.
 # Then copy the last run's checkpoints/last/pretrained_model next to the base and point its config's
@@ -22,7 +25,7 @@ data=${DATA:-data/pusht_corrections}
 episodes=${EPISODES:-200}
 export OMP_NUM_THREADS=1 HF_HUB_OFFLINE=1
 labels=(--repo-id local/pusht_corrections --episodes "$episodes" --teacher "${TEACHER:-anchored_when_drifting}"
-        --static-fraction "${STATIC_FRACTION:-0.3}" --force)
+        --static-fraction "${STATIC_FRACTION:-0.3}" --force ${RECORD_FLAGS:-})
 train() {  # train <dataset root> <output dir> [extra flags]
   local root=$1 dir=$2; shift 2
   .venv/bin/lerobot-train --config_path=configs/policy/dcdp_pusht_residual.json \

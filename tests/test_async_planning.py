@@ -20,10 +20,16 @@ def _policy(diffusion_base, demo_root, **kw):
     return policy
 
 
-def _run(policy, observations) -> torch.Tensor:
+def _run(policy, observations, delays: list[int] | None = None) -> torch.Tensor:
+    """One episode's actions over ``observations`` (each tick's ``chunk_delay`` appended to ``delays``)."""
     torch.manual_seed(3)
     policy.reset()
-    return torch.stack([policy.select_action(dict(o)) for o in observations])
+    actions = []
+    for o in observations:
+        actions.append(policy.select_action(dict(o)))
+        if delays is not None:
+            delays.append(policy.chunk_delay)
+    return torch.stack(actions)
 
 
 @pytest.mark.parametrize("mode", ["dcdp", "open_loop"])
@@ -36,14 +42,17 @@ def test_step_clock_gives_the_actions_of_sync_planning_with_that_delay(
     policy = _policy(diffusion_base, demo_root, n_action_steps=4, execution=mode, inference_delay=delay)
     pre, _ = make_dcdp_pre_post_processors(policy.config)
     observations = [pre(dict(o)) for o in env_observations(2, 14)]
-    sync = _run(policy, observations)
+    sync_delays, async_delays = [], []
+    sync = _run(policy, observations, sync_delays)
     policy.config.planning, policy.config.planning_clock = "async", "steps"
     threads = []  # where the corrector's per-chunk work ran
     chunk_state = policy.corrector.chunk_state
     policy.corrector.chunk_state = lambda *a: (
         threads.append(threading.current_thread().name) or chunk_state(*a)
     )
-    asynchronous = _run(policy, observations)
+    asynchronous = _run(policy, observations, async_delays)
+    # the chunk's delay the recorder stores: the first chunk on time, every later one d steps late
+    assert sync_delays == async_delays == [0] * 4 + [delay] * 10
     assert policy._async.planner is not None  # the worker planned every chunk after the first
     assert (policy.state.kernel is not None) == (mode == "dcdp")  # quiet ticks ran on the compiled kernel
     if mode == "dcdp":  # the first chunk of each episode on the tick, every later one on the worker

@@ -50,6 +50,11 @@ def test_protocol_presets_and_explicit_flags() -> None:
     mine = parse_args(["--protocol", "mild", "--episodes", "2", "--conditions", "random_0.75"])
     assert mine.episodes == 2 and mine.expert_episodes == 2 and mine.conditions == ["random_0.75"]
     assert parse_args(["--protocol", "mild", "--expert-episodes", "40"]).expert_episodes == 40
+    # a results file of one's own gets its own report, never the protocol's shipped one
+    screen = parse_args(["--protocol", "mild", "--out", "runs/screens/mine.json"])
+    assert (screen.out, screen.report) == ("runs/screens/mine.json", "runs/screens/mine.md")
+    both = parse_args(["--out", "runs/a.json", "--report", "runs/b.md"])
+    assert (both.out, both.report) == ("runs/a.json", "runs/b.md")
     with pytest.raises(SystemExit):
         parse_args(["--conditions", "constant_0.6"])
     with pytest.raises(SystemExit):

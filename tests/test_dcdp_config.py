@@ -24,6 +24,7 @@ def test_missing_base_is_refused() -> None:
         ("kl_weight", -1.0),
         ("motion_label", "pushed"),
         ("motion_full_carry_at", 0.0),
+        ("motion_min_carry_speed", -1.0),
     ],
 )
 def test_bad_values_name_the_field(field: str, value) -> None:

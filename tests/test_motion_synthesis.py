@@ -152,6 +152,37 @@ def test_synthesised_target_carries_the_plan_with_the_object(diffusion_base, dem
     torch.testing.assert_close(moved[KEY][rows, k - 1 - step], original[rows, k - 1 - step])
 
 
+def test_motions_slower_than_the_carry_speed_keep_the_plan(diffusion_base, demo_root) -> None:
+    """``motion_min_carry_speed``: a sample whose synthesised speed (the centroid's shift per step since plan
+    time) is below it is labelled with the plan itself, as a still scene; a faster one with the plan carried
+    along with the object's whole observed motion, as without the option."""
+    policy = _policy(
+        diffusion_base,
+        demo_root,
+        motion_static_fraction=0.0,
+        motion_max_speed=4.0,
+        motion_max_turn_deg=0.0,
+        motions_per_sample=4,
+        motion_min_carry_speed=2.0,
+    )
+    batch = next(training_batches(policy, demo_root, batch_size=6))
+    torch.manual_seed(3)
+    sample = policy.corrector.samples.synthesised(batch)
+    step, target = sample.step, sample.target
+    kp = policy.normalizer(KEY, sample.batch[KEY], inverse=True)
+    kp = kp.reshape(*kp.shape[:2], -1, 2)
+    before = policy.normalizer(KEY, batch[KEY].repeat_interleave(4, 0), inverse=True).reshape(kp.shape)
+    rows, k = torch.arange(24), kp.shape[1]
+    speed = (kp[:, -1].mean(1) - before[:, -1].mean(1)).norm(dim=-1) / step.clamp_min(1)
+    slow, fast = (step > 0) & (speed < 2.0), (step > 0) & (speed >= 2.0)
+    assert slow.any() and fast.any()
+    raw = policy.normalizer("action", sample.plan[rows, step], inverse=True)
+    whole = anchor_actions(raw, *rigid_fit_2d(kp[rows, k - 1 - step], kp[:, -1]))
+    expected = torch.where(fast.unsqueeze(-1), whole, raw)
+    torch.testing.assert_close(target, policy.normalizer("action", expected), atol=1e-4, rtol=1e-4)
+    assert not torch.allclose(target[fast], sample.plan[rows, step][fast], atol=1e-3)
+
+
 def test_the_corrector_learns_to_follow_synthesised_motion(diffusion_base, demo_root) -> None:
     policy = _policy(diffusion_base, demo_root, motion_max_speed=4.0, optimizer_lr=3e-3)
     optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())

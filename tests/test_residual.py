@@ -117,6 +117,12 @@ def test_anchored_labels_follow_the_block_with_lookahead() -> None:
     np.testing.assert_allclose(got, expected, atol=1e-4)
     with pytest.raises(ValueError, match="starts before the episode"):
         anchored_labels(plans, np.array([1, 2, 3, 4]), kps, 0)
+    # a late chunk (delay 1 on the last two frames): planned one observation earlier, carried one step more
+    got = anchored_labels(plans, steps, kps, lookahead=0, delays=np.array([0, 0, 0, 1]))
+    expected = plans[np.arange(4), steps] + np.array([[0, 0], [2, -1], [4, -2], [2, -1]])
+    np.testing.assert_allclose(got, expected, atol=1e-4)
+    with pytest.raises(ValueError, match="plan_step \\+ delay"):
+        anchored_labels(plans, steps, kps, 0, delays=np.array([1, 0, 0, 0]))
 
 
 def test_drift_offset_labels_add_only_the_applied_drift() -> None:
@@ -255,11 +261,107 @@ def test_recorded_corrections_hold_the_stale_plan_and_the_teacher(corrections_ro
     torch.testing.assert_close(gaps, step.float() * magnitude, atol=2e-3, rtol=0)
 
 
+@pytest.fixture(scope="module")
+def late_corrections_root(diffusion_base, tmp_path_factory):
+    """Recorded with ``max_delay=3``: episode k's chunks after its first arrive k mod 4 steps late."""
+    from lerobot_dcdp.pusht.corrections import record_corrections
+
+    root = tmp_path_factory.mktemp("late") / "pusht_corrections"
+    record_corrections(
+        root,
+        "local/test",
+        base_path=str(diffusion_base),
+        episodes=4,
+        seed=5,
+        max_magnitude=3.0,
+        static_fraction=0.0,
+        batch_size=4,
+        max_steps=24,
+        progress=False,
+        max_delay=3,
+    )
+    return root
+
+
+def test_late_recorded_chunks_hold_their_delay_and_labels_from_plan_time(late_corrections_root) -> None:
+    """Each frame stores its chunk's delay d. The hindsight anchoring label carries the plan from the
+    observation s + d steps back and equals what the policy's own anchoring executed with that late chunk
+    (from its delayed plan-time keypoints); carrying from s steps back instead gives other labels."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_dcdp.pusht.corrections import anchored_labels
+
+    ds = LeRobotDataset("local/test", root=late_corrections_root)
+    episodes = ds.hf_dataset["episode_index"]
+    for k in range(4):
+        frames = [ds[i] for i, e in enumerate(episodes) if int(e) == k]
+        step = torch.stack([f["observation.dcdp_plan_step"] for f in frames]).reshape(-1).long()
+        delay = torch.stack([f["observation.dcdp_plan_delay"] for f in frames]).reshape(-1).long()
+        assert step.tolist() == [t % 8 for t in range(24)]
+        assert delay.tolist() == [0] * 8 + [k] * 16  # the first chunk is planned on time
+        action = torch.stack([f["action"] for f in frames])
+        torch.testing.assert_close(
+            action, torch.stack([f["executed_action"] for f in frames]), atol=1e-3, rtol=0
+        )
+        if k:
+            plan = torch.stack([f["observation.dcdp_plan"] for f in frames]).reshape(24, -1, 2).numpy()
+            kps = torch.stack([f["observation.environment_state"] for f in frames]).reshape(24, -1, 2).numpy()
+            on_time = anchored_labels(plan, step.numpy(), kps, 0)  # ignoring the delay
+            assert np.abs(on_time[8:] - action[8:].numpy()).max() > 0.5
+
+
+def test_training_on_late_chunks_takes_each_samples_plan_time_frame(
+    diffusion_base, late_corrections_root
+) -> None:
+    """The anchoring proposal built in the loss from the sample's plan-time frame t-s-d reproduces the
+    recorded label exactly (ignoring the delay column would not); a delay above train_max_delay is refused."""
+    kw = dict(anchor_input=True, anchor_feature="observation.environment_state")
+    policy = _residual_policy(diffusion_base, late_corrections_root, train_max_delay=3, **kw).eval()
+    batches = training_batches(policy, late_corrections_root, batch_size=64)
+    for _ in range(2):
+        _, parts = policy(next(batches))
+        assert parts["plan_gap"] > 1e-5 and parts["anchor_gap"] < 1e-9
+    short = _residual_policy(diffusion_base, late_corrections_root, **kw).eval()
+    with pytest.raises(ValueError, match="train_max_delay"):
+        short(next(training_batches(short, late_corrections_root, batch_size=96)))
+
+
+def test_correction_stats_tabulates_label_sizes_per_delay(late_corrections_root) -> None:
+    """scripts/correction_stats.py gives one row per recorded delay (0..3 here); an on-time chunk's first step
+    is labelled with the plan itself (0.0 px), a late chunk's first step already carries the drift."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "correction_stats.py"
+    out = subprocess.run(
+        [sys.executable, str(script), str(late_corrections_root)],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    rows = {
+        int(line.split("|")[1]): line.split("|")
+        for line in out.splitlines()
+        if line[:3] in {"| 0", "| 1", "| 2", "| 3"}
+    }
+    assert sorted(rows) == [0, 1, 2, 3]
+    first_step = {d: float(row[5].split("/")[0]) for d, row in rows.items()}
+    assert first_step[0] == 0.0
+    assert all(first_step[d] > 0.5 for d in (1, 2, 3))
+    assert "4 episodes (0 with every label the plan)" in out
+
+
 def test_record_corrections_refuses_eval_seeds_and_foreign_folders(diffusion_base, tmp_path) -> None:
     from lerobot_dcdp.pusht.corrections import record_corrections
 
     with pytest.raises(ValueError, match="evaluation seeds"):
         record_corrections(tmp_path / "x", base_path=str(diffusion_base), episodes=2, seed=99_999)
+    with pytest.raises(ValueError, match="max_delay must be >= 0"):
+        record_corrections(tmp_path / "x", base_path=str(diffusion_base), episodes=2, max_delay=-1)
+    with pytest.raises(ValueError, match="actions per chunk"):
+        record_corrections(tmp_path / "x", base_path=str(diffusion_base), episodes=2, max_delay=1000)
+    assert not (tmp_path / "x").exists()
     (tmp_path / "home").mkdir()
     (tmp_path / "home" / "precious.txt").write_text("keep me")
     with pytest.raises(ValueError, match="not an output of dcdp-record-corrections"):

@@ -103,6 +103,9 @@ class DCDPConfig(PreTrainedConfig):
         plan_feature: Dataset key of the chunk the base planned at the chunk start, (L, A) raw actions, in
             recorded corrections (``residual`` training only; never read at inference).
         plan_step_feature: Dataset key of the step index s of a frame within its chunk (``residual``).
+        plan_delay_feature: Dataset key of the delay d of a frame's chunk in recorded corrections: steps from
+            the observation it was planned from to its first action (``dcdp-record-corrections
+            --max-delay``); the plan-time frame is t-s-d. Absent from a dataset: d = 0.
         change_scale: Factor on the change of the (normalised) corrector inputs since plan time before the
             residual head sees it: that change is small next to the inputs' range.
         anchor_input: ``residual`` only: also give the head the ``object_anchored`` proposal for step s (the
@@ -133,13 +136,18 @@ class DCDPConfig(PreTrainedConfig):
         motion_full_carry_at: ``motion_label=graded`` only: the displacement of the object's centroid by the
             synthesised motion (raw anchor units) from which the label carries the object's whole observed
             motion. ``None``: ``n_action_steps / 2`` steps of the largest synthesised speed.
+        motion_min_carry_speed: ``residual`` on plain demonstrations: synthesised motions whose speed is
+            below this (the object's centroid, raw anchor units per control step) keep the plan as their
+            label, as still samples do: a world that moves the object this slowly is left to the base's own
+            next plan. 0 (default): every synthesised motion is carried.
         motions_per_sample: ``residual`` on plain demonstrations: independent motions drawn per dataset
             sample (the batch is repeated this many times).
         train_max_delay: ``residual`` on plain demonstrations: chunks that arrive late. Each synthesised
             sample draws a delay d in [0, train_max_delay] (within the episode): the chunk was planned from
             the observation d steps before it started being executed (its first d entries skipped), so the
             corrector's plan-time frame is t-s-d while its step is s -- as ``inference_delay`` and
-            ``planning='async'`` run it. Lengthens the observation window to max(M, H + train_max_delay).
+            ``planning='async'`` run it. On recorded corrections: the largest delay the dataset's
+            ``plan_delay_feature`` may hold. Lengthens the observation window to max(M, H + train_max_delay).
         backbone: Per-frame backbone: ``mlp`` for state/keypoint vectors, ``resnet18`` for images, ``auto``
             picks ``resnet18`` when the inputs hold images, else ``mlp``.
         observation_features: Observation keys the corrector reads; empty = every observation input of the
@@ -185,6 +193,7 @@ class DCDPConfig(PreTrainedConfig):
     anchor_feature: str | None = None
     plan_feature: str = "observation.dcdp_plan"
     plan_step_feature: str = "observation.dcdp_plan_step"
+    plan_delay_feature: str = "observation.dcdp_plan_delay"
     change_scale: float = 10.0
     anchor_input: bool = False
     compiled_kernel: str = "auto"
@@ -193,6 +202,7 @@ class DCDPConfig(PreTrainedConfig):
     motion_static_fraction: float = 0.25
     motion_label: str = "observed"
     motion_full_carry_at: float | None = None
+    motion_min_carry_speed: float = 0.0
     motions_per_sample: int = 4
     train_max_delay: int = 0
 
@@ -277,6 +287,13 @@ class DCDPConfig(PreTrainedConfig):
             raise ValueError(
                 f"motion_full_carry_at must be > 0 (or None for the default), got {self.motion_full_carry_at}"
             )
+        if not self.motion_min_carry_speed >= 0:
+            raise ValueError(f"motion_min_carry_speed must be >= 0, got {self.motion_min_carry_speed}")
+        if self.motion_max_speed is not None and self.motion_min_carry_speed > self.motion_max_speed:
+            raise ValueError(
+                f"motion_min_carry_speed ({self.motion_min_carry_speed}) is above motion_max_speed "
+                f"({self.motion_max_speed}): no synthesised motion would be carried"
+            )
         if not self.motion_max_turn_deg >= 0:
             raise ValueError(f"motion_max_turn_deg must be >= 0, got {self.motion_max_turn_deg}")
         if not 0.0 <= self.motion_static_fraction <= 1.0:
@@ -348,11 +365,17 @@ class DCDPConfig(PreTrainedConfig):
 
     # ------------------------------------------------------------------ features
     @property
+    def plan_columns(self) -> tuple[str, str, str]:
+        """Dataset keys of recorded corrections' plan context (plan, step, delay): training targets'
+        context, never corrector inputs."""
+        return (self.plan_feature, self.plan_step_feature, self.plan_delay_feature)
+
+    @property
     def corrector_features(self) -> list[str]:
         """Observation keys the corrector reads (``observation_features`` or every observation input)."""
         if self.observation_features:
             return list(self.observation_features)
-        skip = (self.plan_feature, self.plan_step_feature)
+        skip = self.plan_columns
         return [
             k
             for k, ft in (self.input_features or {}).items()

@@ -31,6 +31,8 @@ class EpisodeState:
         t: Control steps since reset.
         past: ``inference_delay`` d: what the base saw at steps t-d .. t.
         last_step: Index in the chunk of the action last returned.
+        chunk_delay: Steps from the observation the current chunk was planned from to its first action (its
+            age at ``last_step`` is ``last_step + chunk_delay``).
         tick_at, tick_s, plan_s: ``planning='async'``, wall clock: the last tick's time, the smoothed tick
             period and the smoothed planning time of the base (seconds).
     """
@@ -51,6 +53,7 @@ class EpisodeState:
     t: int = 0
     past: deque = field(default_factory=deque)
     last_step: int | None = None
+    chunk_delay: int = 0
     tick_at: float | None = None
     tick_s: float | None = None
     plan_s: float | None = None

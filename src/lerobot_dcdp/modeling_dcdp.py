@@ -76,9 +76,7 @@ class DCDPPolicy(PreTrainedPolicy):
         self._source: ChunkSource = make_chunk_source(base)
         if config.input_features:  # the recorded plan is a training target's context, never an input
             config.input_features = {
-                k: v
-                for k, v in config.input_features.items()
-                if k not in (config.plan_feature, config.plan_step_feature)
+                k: v for k, v in config.input_features.items() if k not in config.plan_columns
             }
         check_against_base(config, base, self.source.chunk_length, self.source.max_length)
         config.validate_features()
@@ -262,6 +260,12 @@ class DCDPPolicy(PreTrainedPolicy):
     def last_step(self) -> int | None:
         """Index in the chunk of the action last returned (0 for the per-step modes)."""
         return self.state.last_step
+
+    @property
+    def chunk_delay(self) -> int:
+        """Steps from the observation the chunk being executed was planned from to its first action (0 for
+        an on-time chunk; ``inference_delay`` or the real lateness under ``planning='async'``)."""
+        return self.state.chunk_delay
 
     def reset(self) -> None:
         """Start a new episode: clear the history bank and the chunk state, and reset the base."""

@@ -77,9 +77,10 @@ class SyncPlanning:
         if not self.config.inference_delay:
             state.at_plan = state.rep
             state.anchor_plan = self.anchor.points(batch) if mode.anchored else None
+            state.chunk_delay = 0
             return self.source.chunk(prepared, length)
         then = state.past[0]
-        skip = state.t - then["t"]
+        skip = state.chunk_delay = state.t - then["t"]
         length = min((length or self.source.chunk_length) + skip, self.source.max_length)
         state.at_plan, state.anchor_plan = then["rep"], then["anchor"]
         return self.source.chunk_from(then["prepared"], then["queues"], length)[:, skip:]
@@ -140,7 +141,7 @@ class AsyncPlanning:
                 else:
                     chunk = self.source.chunk(prepared, horizon)
                 state.plan_s = _smoothed(state.plan_s, time.perf_counter() - started)
-                self._begin(state, mode, chunk, context)
+                self._begin(state, mode, chunk, context, delay=0)
             else:
                 self._schedule(state, mode, prepared, context)
         step = min(state.step, state.chunk.shape[1] - 1)  # a chunk kept past its end holds its last step
@@ -169,7 +170,7 @@ class AsyncPlanning:
                 state.plan_s = _smoothed(state.plan_s, job.seconds)
                 age = min(t - job.t_obs, job.chunk.shape[1] - 1)  # older than its length: its last step
                 ready = job.prepared[1] if job.prepared is not None and job.prepared[0] == age else None
-                self._begin(state, mode, job.chunk[:, age : age + horizon], job.context, ready)
+                self._begin(state, mode, job.chunk[:, age : age + horizon], job.context, ready, delay=age)
 
     def _finisher(self, mode: ExecutionMode, age: int, context: tuple):
         """What the worker does after the base when the chunk is expected to start ``age`` steps after its
@@ -187,12 +188,19 @@ class AsyncPlanning:
         return finish
 
     def _begin(
-        self, state: EpisodeState, mode: ExecutionMode, chunk: Tensor, context: tuple, prepared=None
+        self,
+        state: EpisodeState,
+        mode: ExecutionMode,
+        chunk: Tensor,
+        context: tuple,
+        prepared=None,
+        delay: int = 0,
     ) -> None:
         """Start executing ``chunk`` (B, <= H, A; a short one is padded with its last action) planned from
-        the observation whose change representation and anchor keypoints ``context`` holds (``prepared``:
-        the mode's per-chunk work on it, done by the worker)."""
+        the observation whose change representation and anchor keypoints ``context`` holds, ``delay`` steps
+        before its first action (``prepared``: the mode's per-chunk work on it, done by the worker)."""
         state.at_plan, state.anchor_plan = context
+        state.chunk_delay = delay
         state.step = 0
         mode.begin_chunk(state, _fit(chunk, self.config.n_action_steps), prepared)
 

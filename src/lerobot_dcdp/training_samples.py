@@ -63,7 +63,8 @@ class CorrectionSamples:
         if cfg.plan_feature in batch and cfg.plan_step_feature in batch:
             plan, step = self.recorded_plan(batch)
             target, valid = self.current_action(batch)
-            return CorrectionSample(batch, plan, step, step, target, valid, synthesised=False)
+            age = step + self.recorded_delay(batch)
+            return CorrectionSample(batch, plan, step, age, target, valid, synthesised=False)
         if cfg.anchor_feature and cfg.anchor_feature in batch:
             return self.synthesised(batch)
         raise ValueError(
@@ -115,6 +116,22 @@ class CorrectionSamples:
             raise ValueError(f"{cfg.plan_step_feature} must lie in [0, {cfg.n_action_steps - 1}]")
         return self.norm(ACTION, plan[:, : cfg.n_action_steps]), step
 
+    def recorded_delay(self, batch: dict[str, Tensor]) -> Tensor:
+        """Each recorded sample's chunk delay d (B,): ``plan_delay_feature``, 0 where the dataset has none."""
+        cfg = self.config
+        step = batch[cfg.plan_step_feature]
+        if cfg.plan_delay_feature not in batch:
+            return torch.zeros(step.shape[0], dtype=torch.long, device=step.device)
+        delay = batch[cfg.plan_delay_feature]
+        delay = delay.reshape(delay.shape[0], -1)[:, -1].round().long()
+        if (delay < 0).any() or (delay > cfg.train_max_delay).any():
+            raise ValueError(
+                f"{cfg.plan_delay_feature} holds delays up to {int(delay.max())} steps, outside [0, "
+                f"train_max_delay={cfg.train_max_delay}]: train with --policy.train_max_delay >= the "
+                "recording's --max-delay"
+            )
+        return delay
+
     def motion_max_speed(self) -> float:
         """``motion_max_speed``, or its default from the anchor keypoints' extent in the base's statistics."""
         cfg = self.config
@@ -144,7 +161,8 @@ class CorrectionSamples:
         ``plan_feature`` holds one per frame), its own rigid motion of the anchor keypoints through the
         window, and as the target the plan's action s carried with the object's motion since plan time
         (``motion_label``: the whole motion the moved keypoints show, only the synthesised one, or the
-        synthesised one plus a share of the rest graded by how far the world moved the object).
+        synthesised one plus a share of the rest graded by how far the world moved the object); motions
+        slower than ``motion_min_carry_speed`` keep the plan, as still samples do.
         """
         cfg, norm = self.config, self.norm
         horizon, key = cfg.n_action_steps, cfg.anchor_feature
@@ -221,6 +239,8 @@ class CorrectionSamples:
             carried = whole
         carried = norm(ACTION, carried)
         moving = (velocity != 0).any(-1) | (turn != 0)
+        if cfg.motion_min_carry_speed > 0:  # a slow world is left to the base's next plan
+            moving &= velocity.norm(dim=-1) >= cfg.motion_min_carry_speed
         target = torch.where(moving.unsqueeze(-1), carried, plan_s)  # a still scene keeps the plan exactly
         _, valid = self.current_action(batch)
         return CorrectionSample(batch, plan, step, age, target, valid, synthesised=True)

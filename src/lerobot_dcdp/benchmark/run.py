@@ -195,10 +195,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     p.add_argument("--videos", type=int, default=None, help="side-by-side open_loop|dcdp videos to render")
     p.add_argument("--out", default=None, help="results file (main: results/benchmark.json)")
-    p.add_argument("--report", default=None, help="generated report (main: docs/RESULTS.md)")
+    p.add_argument(
+        "--report",
+        default=None,
+        help="generated report (main: docs/RESULTS.md; with --out: the results file's name with .md)",
+    )
     p.add_argument("--force", action="store_true", help="recompute finished cells (and replace any cell)")
     a = p.parse_args(argv)
     preset = presets[a.protocol]
+    if a.out is not None and a.report is None:  # a screen of one's own never rewrites the shipped report
+        a.report = str(Path(a.out).with_suffix(".md"))
     for key in ("methods", "conditions", "episodes", "latency_steps", "videos", "out", "report"):
         if getattr(a, key) is None:
             setattr(a, key, preset[key])

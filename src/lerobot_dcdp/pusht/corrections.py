@@ -10,6 +10,9 @@ executed step is labelled with what a teacher would do with the stale chunk. Per
 - ``observation.dcdp_plan`` (L * A,) and ``observation.dcdp_plan_step`` (1,): the chunk as the base planned
   it at the chunk start (flattened, so LeRobot's ``merge_datasets`` can aggregate DAgger rounds), and the
   step s of this frame in it;
+- ``observation.dcdp_plan_delay`` (1,): the chunk's delay d, steps from the observation it was planned from
+  to its first action (``--max-delay D``: episode k's base answers d = k mod (D + 1) steps late, as
+  ``--policy.inference_delay`` runs it; train with ``--policy.train_max_delay >= D``);
 - ``action``: the teacher's action for step s; ``executed_action``: what was actually sent to the env;
 - ``next.reward``, ``next.success``, ``next.done``.
 
@@ -134,6 +137,7 @@ def features(plan_length: int, action_dim: int = 2, observations: dict | None = 
         # flat (L * A,): LeRobot's merge_datasets cannot copy a 2-D column (the policy reshapes it)
         "observation.dcdp_plan": {"dtype": "float32", "shape": (plan_length * action_dim,), "names": None},
         "observation.dcdp_plan_step": {"dtype": "float32", "shape": (1,), "names": None},
+        "observation.dcdp_plan_delay": {"dtype": "float32", "shape": (1,), "names": None},
         "action": {"dtype": "float32", "shape": (action_dim,), "names": xy},
         "executed_action": {"dtype": "float32", "shape": (action_dim,), "names": xy},
         "next.reward": {"dtype": "float32", "shape": (1,), "names": None},
@@ -142,8 +146,23 @@ def features(plan_length: int, action_dim: int = 2, observations: dict | None = 
     }
 
 
+def plan_time(steps: np.ndarray, delays: np.ndarray | None) -> np.ndarray:
+    """Index of the observation each frame's chunk was planned from: t - s - d."""
+    t = np.arange(len(steps))
+    plan_idx = t - steps - (0 if delays is None else np.asarray(delays))
+    if (plan_idx < 0).any():
+        raise ValueError(
+            "a frame's chunk starts before the episode (plan_step + delay larger than its index)"
+        )
+    return plan_idx
+
+
 def anchored_labels(
-    plans: np.ndarray, steps: np.ndarray, keypoints: np.ndarray, lookahead: int
+    plans: np.ndarray,
+    steps: np.ndarray,
+    keypoints: np.ndarray,
+    lookahead: int,
+    delays: np.ndarray | None = None,
 ) -> np.ndarray:
     """Teacher actions of one episode: ``plan_s`` moved with the block's rigid motion from plan time to
     ``t + lookahead`` (clamped to the episode's last observation).
@@ -152,14 +171,13 @@ def anchored_labels(
         plans: (T, H, A) raw chunk as planned, per frame; steps: (T,) s of each frame.
         keypoints: (T + 1, N, 2) raw keypoints of every observation, the one after the last step included.
         lookahead: steps ahead of t at which the block pose is taken (0: the current observation).
+        delays: (T,) each frame's chunk delay d (plan time t-s-d); None: 0.
     """
     from lerobot_dcdp.correction import anchor_actions, rigid_fit_2d
 
     t_len = len(steps)
     t = np.arange(t_len)
-    plan_idx = t - steps
-    if (plan_idx < 0).any():
-        raise ValueError("a frame's chunk starts before the episode (plan_step larger than its index)")
+    plan_idx = plan_time(steps, delays)
     target = np.minimum(t + lookahead, len(keypoints) - 1)
     kp = torch.as_tensor(keypoints, dtype=torch.float64)
     rot, tr = rigid_fit_2d(kp[plan_idx], kp[target])
@@ -168,7 +186,11 @@ def anchored_labels(
 
 
 def drift_offset_labels(
-    plans: np.ndarray, steps: np.ndarray, offsets: np.ndarray, lookahead: int
+    plans: np.ndarray,
+    steps: np.ndarray,
+    offsets: np.ndarray,
+    lookahead: int,
+    delays: np.ndarray | None = None,
 ) -> np.ndarray:
     """Teacher actions of one episode: ``plan_s`` translated by the drift the env applied between the plan's
     observation and observation ``t + lookahead`` (clamped to the episode's last observation).
@@ -178,12 +200,11 @@ def drift_offset_labels(
         offsets: (T, 2) block translation the env applied in each step (``info["perturbation_offset"]``);
             observation t has seen the offsets of steps 0..t-1.
         lookahead: observations ahead of t whose drift is included (0: what observation t has seen).
+        delays: (T,) each frame's chunk delay d (plan time t-s-d); None: 0.
     """
     t_len = len(steps)
     t = np.arange(t_len)
-    plan_idx = t - steps
-    if (plan_idx < 0).any():
-        raise ValueError("a frame's chunk starts before the episode (plan_step larger than its index)")
+    plan_idx = plan_time(steps, delays)
     if offsets.shape != (t_len, 2):
         raise ValueError(f"offsets must be ({t_len}, 2), one per step, got {offsets.shape}")
     seen = np.concatenate([np.zeros((1, 2)), np.cumsum(offsets, axis=0)])  # drift seen by obs 0..T
@@ -348,7 +369,7 @@ def rollout_corrections(
     n = len(seeds)
     anchor = policy.config.anchor_feature
     obs_keys = recorded_keys(policy)
-    keys = ("obs", "anchor", "plan", "step", "exec", "reward", "success", "offset", "teach")
+    keys = ("obs", "anchor", "plan", "step", "delay", "exec", "reward", "success", "offset", "teach")
     cols = [{k: [] for k in keys} for _ in seeds]
     torch.manual_seed(seeds[0])  # the base's sampling noise: the same command records the same data
     policy.reset()
@@ -381,6 +402,7 @@ def rollout_corrections(
                 c["anchor"].append(raw[anchor][i].numpy().astype(np.float32))
             c["plan"].append(plan[i].astype(np.float32))
             c["step"].append(policy.last_step)
+            c["delay"].append(policy.chunk_delay)
             c["exec"].append(action[i].astype(np.float32))
             if taught is not None:
                 c["teach"].append(taught[i].astype(np.float32))
@@ -400,7 +422,7 @@ def rollout_corrections(
         env.close()
     episodes = []
     for i, c in enumerate(cols):
-        plans, steps = np.stack(c["plan"]), np.asarray(c["step"])
+        plans, steps, delays = np.stack(c["plan"]), np.asarray(c["step"]), np.asarray(c["delay"])
         plan_s = plans[np.arange(len(steps)), steps]
         w = 1.0 if weights is None else float(weights[i])
         labels = plan_s.copy()
@@ -408,17 +430,18 @@ def rollout_corrections(
             taught_ep = np.stack(c["teach"])
             labels = taught_ep if w == 1.0 else plan_s + w * (taught_ep - plan_s)
         elif w > 0 and teacher == "drift_offset":
-            labels = drift_offset_labels(plans, steps, np.stack(c["offset"]), lookahead)
+            labels = drift_offset_labels(plans, steps, np.stack(c["offset"]), lookahead, delays)
             labels = plan_s + w * (labels - plan_s)
         elif w > 0:
             kps = np.stack(c["anchor"])
-            anchored = anchored_labels(plans, steps, kps.reshape(len(kps), -1, 2), lookahead)
+            anchored = anchored_labels(plans, steps, kps.reshape(len(kps), -1, 2), lookahead, delays)
             labels = plan_s + w * (anchored - plan_s)
         episodes.append(
             {
                 "obs": {k: np.stack([f[k] for f in c["obs"]]) for k in obs_keys},
                 "plan": plans,
                 "step": steps,
+                "delay": delays,
                 "label": labels,
                 "exec": np.stack(c["exec"]),
                 "reward": np.asarray(c["reward"], dtype=np.float32),
@@ -481,6 +504,7 @@ def _write_episode(ds, ep: dict, task: str) -> None:
                 **{k: v[t] for k, v in ep["obs"].items()},
                 "observation.dcdp_plan": ep["plan"][t].reshape(-1),
                 "observation.dcdp_plan_step": np.array([ep["step"][t]], dtype=np.float32),
+                "observation.dcdp_plan_delay": np.array([ep["delay"][t]], dtype=np.float32),
                 "action": ep["label"][t],
                 "executed_action": ep["exec"][t],
                 "next.reward": ep["reward"][t : t + 1],
@@ -536,6 +560,7 @@ def record_corrections(
     teacher_policy: str | Path | None = None,
     env_config=None,
     anchor_feature: str = "observation.environment_state",
+    max_delay: int = 0,
 ) -> dict:
     """Record ``episodes`` episodes of stale chunks and teacher corrections to a LeRobotDataset at ``root``.
 
@@ -543,7 +568,8 @@ def record_corrections(
     ``pretrained_model`` folder) the ``policy`` teacher. ``env_config`` (a LeRobot ``EnvConfig``; default
     ``pusht_perturbed`` with keypoint observations) is the env: ``pusht_perturbed`` episodes get the drift
     drawn per episode, any other env type runs as configured. ``anchor_feature`` names the object's xy
-    keypoints for the anchoring teachers.
+    keypoints for the anchoring teachers. ``max_delay`` D: late chunks, the base of episode ``seed + k``
+    answering d = k mod (D + 1) steps late (``inference_delay``; the first chunk of an episode is on time).
 
     Raises:
         ValueError: bad arguments, seeds reaching the evaluation seeds, or an existing ``root`` that is not an
@@ -586,6 +612,8 @@ def record_corrections(
         )
     if lookahead < 0:
         raise ValueError(f"lookahead must be >= 0, got {lookahead}")
+    if max_delay < 0:
+        raise ValueError(f"max_delay must be >= 0 control steps, got {max_delay}")
     if not max_magnitude >= 0 or not 0.0 <= static_fraction <= 1.0:
         raise ValueError(
             "max_magnitude must be >= 0 and static_fraction in [0, 1], "
@@ -606,6 +634,11 @@ def record_corrections(
     drive = "open_loop" if execution == "teacher" else execution
     policy, pre, post = load_policy(policy_path, base_path, drive, anchor_feature)
     horizon = policy.config.n_action_steps
+    if horizon + max_delay > policy.source.max_length:
+        raise ValueError(
+            f"max_delay={max_delay} needs n_action_steps + max_delay = {horizon + max_delay} actions per "
+            f"chunk, but the base plans at most {policy.source.max_length}"
+        )
     seeds = list(range(seed, seed + episodes))
     if drifting:
         specs = [drift_for_seed(s, max_magnitude, static_fraction) for s in seeds]
@@ -658,10 +691,20 @@ def record_corrections(
             )
             bar = tqdm(total=episodes, desc=f"episodes ({execution})", disable=not progress)
             gated = teacher == "anchored_when_drifting"
-            groups = [(False, [i for i, sp in enumerate(specs) if not (gated and sp.perturbation == "none")])]
-            groups.append((True, [i for i, sp in enumerate(specs) if gated and sp.perturbation == "none"]))
-            for plan_labels, idx in groups:
+            kept = [gated and sp.perturbation == "none" for sp in specs]  # labelled with the plan itself
+            groups = [
+                (plan_labels, delay, idx)
+                for plan_labels in (False, True)
+                for delay in range(max_delay + 1)
+                if (
+                    idx := [
+                        i for i in range(episodes) if kept[i] == plan_labels and i % (max_delay + 1) == delay
+                    ]
+                )
+            ]
+            for plan_labels, delay, idx in groups:
                 policy.config.execution = "open_loop" if plan_labels and execution != "dcdp" else drive
+                policy.config.inference_delay = delay
                 weight = [0.0 if plan_labels else _weight(specs[i], gated, ramp) for i in idx]
                 for j in range(0, len(idx), batch_size):
                     part = idx[j : j + batch_size]
@@ -690,7 +733,7 @@ def record_corrections(
             bar.close()
             ds.finalize()
             (tmp_root / MARKER).write_text(
-                f"execution={execution} teacher={teacher} lookahead={lookahead} "
+                f"execution={execution} teacher={teacher} lookahead={lookahead} max_delay={max_delay} "
                 f"seeds={seed}..{seed + episodes - 1}\n"
             )
     finally:
@@ -768,6 +811,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--static-fraction", type=float, default=0.1, help="share of episodes without drift")
     p.add_argument("--batch-size", type=int, default=50, help="envs rolled out together")
     p.add_argument("--max-steps", type=int, default=300)
+    p.add_argument(
+        "--max-delay",
+        type=int,
+        default=0,
+        help="late chunks: episode k's base answers k mod (D + 1) steps late (train with "
+        "--policy.train_max_delay >= D; record with --execution open_loop, docs/METHOD.md)",
+    )
     p.add_argument("--force", action="store_true", help="overwrite an earlier output at --root")
     p.add_argument(
         "--teacher-policy",
@@ -812,6 +862,7 @@ def main(argv: list[str] | None = None) -> None:
             teacher_policy=a.teacher_policy,
             env_config=env_config,
             anchor_feature=a.anchor_feature,
+            max_delay=a.max_delay,
         )
     except ValueError as e:
         sys.exit(f"dcdp-record-corrections: error: {e}")
@@ -824,7 +875,8 @@ def main(argv: list[str] | None = None) -> None:
         f"train a corrector on it:\n  lerobot-train --policy.type=dcdp --policy.base_policy_path={base} "
         f"--policy.anchor_feature=observation.environment_state --dataset.repo_id={a.repo_id} "
         f"--dataset.root={root} --batch_size=128 --steps=1000 --policy.push_to_hub=false "
-        "--output_dir=runs/dcdp"
+        + (f"--policy.train_max_delay={a.max_delay} " if a.max_delay else "")
+        + "--output_dir=runs/dcdp"
     )
 
 
