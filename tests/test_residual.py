@@ -213,24 +213,29 @@ def test_object_anchored_is_open_loop_while_the_object_stands_still_and_follows_
 
 
 # ---------------------------------------------------------------- recorded corrections + residual corrector
-@pytest.fixture(scope="module")
-def corrections_root(diffusion_base, tmp_path_factory):
+def _record_drifting(diffusion_base, root, episodes: int, **kw) -> dict:
+    """Tiny recording around ``diffusion_base``: every episode drifts (3 px/step at most), 24 steps each."""
     from lerobot_dcdp.pusht.corrections import record_corrections
 
-    root = tmp_path_factory.mktemp("corr") / "pusht_corrections"
-    info = record_corrections(
+    return record_corrections(
         root,
         "local/test",
         base_path=str(diffusion_base),
-        episodes=3,
+        episodes=episodes,
         seed=5,
         max_magnitude=3.0,
         static_fraction=0.0,
-        batch_size=3,
+        batch_size=episodes,
         max_steps=24,
         progress=False,
+        **kw,
     )
-    assert info["frames"] > 0
+
+
+@pytest.fixture(scope="module")
+def corrections_root(diffusion_base, tmp_path_factory):
+    root = tmp_path_factory.mktemp("corr") / "pusht_corrections"
+    assert _record_drifting(diffusion_base, root, episodes=3)["frames"] > 0
     return root
 
 
@@ -264,22 +269,8 @@ def test_recorded_corrections_hold_the_stale_plan_and_the_teacher(corrections_ro
 @pytest.fixture(scope="module")
 def late_corrections_root(diffusion_base, tmp_path_factory):
     """Recorded with ``max_delay=3``: episode k's chunks after its first arrive k mod 4 steps late."""
-    from lerobot_dcdp.pusht.corrections import record_corrections
-
     root = tmp_path_factory.mktemp("late") / "pusht_corrections"
-    record_corrections(
-        root,
-        "local/test",
-        base_path=str(diffusion_base),
-        episodes=4,
-        seed=5,
-        max_magnitude=3.0,
-        static_fraction=0.0,
-        batch_size=4,
-        max_steps=24,
-        progress=False,
-        max_delay=3,
-    )
+    _record_drifting(diffusion_base, root, episodes=4, max_delay=3)
     return root
 
 
