@@ -13,6 +13,8 @@
 #   env: FPS=10 DURATION=30 MODES="open_loop dcdp object_anchored temporal_ensemble closed_loop"
 #        PLANNING=sync|async (--policy.planning; async applies to open_loop, dcdp, object_anchored)
 #        TICKS_PER_STEP=1 (--policy.ticks_per_step: FPS/10 holds each planned action for that many ticks)
+#        PLANNER_CPUS= (async only: --policy.planner_cpus, e.g. "[1]": the base's worker on CPU 1, the loop
+#        on the others)
 #        PERTURBATION=constant MAGNITUDE=2.0 OUT=runs/rollout_deadlines
 #        LEROBOT_ROLLOUT=.venv/bin/lerobot-rollout (the CLI to run)
 # Writes $OUT/<mode>.log and $OUT/summary.md (also printed).
@@ -21,10 +23,11 @@ policy=${1:-models/pusht-dcdp-state}
 FPS=${FPS:-10}; DURATION=${DURATION:-30}; OUT=${OUT:-runs/rollout_deadlines}
 MODES=${MODES:-open_loop dcdp object_anchored temporal_ensemble closed_loop}
 LEROBOT_ROLLOUT=${LEROBOT_ROLLOUT:-.venv/bin/lerobot-rollout}
-PLANNING=${PLANNING:-sync}; TICKS_PER_STEP=${TICKS_PER_STEP:-1}
+PLANNING=${PLANNING:-sync}; TICKS_PER_STEP=${TICKS_PER_STEP:-1}; PLANNER_CPUS=${PLANNER_CPUS:-}
+pin=(); [ -n "$PLANNER_CPUS" ] && pin=(--policy.planner_cpus="$PLANNER_CPUS")
 mkdir -p "$OUT"
 {
-  echo "policy \`$policy\`, planning=${PLANNING}, ticks_per_step=${TICKS_PER_STEP}, ${FPS} Hz, ${DURATION} s per mode, ${PERTURBATION:-constant} drift ${MAGNITUDE:-2.0} px/step,"
+  echo "policy \`$policy\`, planning=${PLANNING}${PLANNER_CPUS:+, planner_cpus=$PLANNER_CPUS}, ticks_per_step=${TICKS_PER_STEP}, ${FPS} Hz, ${DURATION} s per mode, ${PERTURBATION:-constant} drift ${MAGNITUDE:-2.0} px/step,"
   echo "$(nproc) CPUs, OMP_NUM_THREADS=1, load average before: $(cut -d' ' -f1-3 /proc/loadavg), $(date -u +%FT%TZ)"
   echo
   echo "| mode | ticks | missed deadlines (LeRobot warnings) | missed % | slowest tick ms | held sim steps | superseded actions | max coverage | episodes finished | mean score |"
@@ -36,7 +39,7 @@ for mode in $MODES; do
     --robot.perturbation="${PERTURBATION:-constant}" --robot.magnitude="${MAGNITUDE:-2.0}" \
     --robot.seed=100000 --robot.episode_steps=300 \
     --policy.path="$policy" --policy.execution="$mode" --policy.planning="$PLANNING" \
-    --policy.ticks_per_step="$TICKS_PER_STEP" --fps="$FPS" --duration="$DURATION" \
+    --policy.ticks_per_step="$TICKS_PER_STEP" "${pin[@]}" --fps="$FPS" --duration="$DURATION" \
     --return_to_initial_position=false --play_sounds=false > "$log" 2>&1 \
     || { echo "rollout failed for $mode, see $log" >&2; exit 1; }
   summary=$(grep -o "PushTSim disconnected: .*" "$log") \

@@ -5,16 +5,20 @@ The loop is the one LeRobot's sync inference engine runs per tick (robot observa
 ``select_action`` -> post-processor -> ``send_action``), paced at ``--fps`` on the wall clock. LeRobot's
 rollout prints only the ticks that overran their period; this prints the distribution of every tick.
 
-Usage: .venv/bin/python scripts/tick_times.py [--policy models/pusht-dcdp-state] [--fps 30] [--seconds 30]
-           [--planning sync async] [--gc]
+Usage: .venv/bin/python scripts/tick_times.py [--policy models/pusht-dcdp-state] [--fps 10 30] [--seconds 30]
+           [--planning sync async async_pinned] [--planner-cpus 1] [--repeats 2] [--out FILE] [--gc]
   --gc: also time every garbage-collector pass (``gc.callbacks``) and report the passes and the collector's
   time inside the slowest tick (does the collector make the worst tick?).
+  async_pinned: async with the worker on ``--planner-cpus`` and the control loop on the other CPUs
+  (``--policy.planner_cpus``). ``--repeats``: each row that many times, interleaved (the spread between runs).
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import os
+import sys
 import time
 
 import numpy as np
@@ -39,7 +43,14 @@ class GCTimer:
         return 1000 * sum(b - a for a, b, _ in self.passes if start <= a < end)
 
 
-def run(policy_path: str, planning: str, fps: int, seconds: float, gc_timer: GCTimer | None = None) -> dict:
+def run(
+    policy_path: str,
+    planning: str,
+    fps: int,
+    seconds: float,
+    gc_timer: GCTimer | None = None,
+    planner_cpus: list[int] | None = None,
+) -> dict:
     from lerobot.policies.utils import prepare_observation_for_inference
 
     from lerobot_dcdp.modeling_dcdp import DCDPPolicy
@@ -48,6 +59,7 @@ def run(policy_path: str, planning: str, fps: int, seconds: float, gc_timer: GCT
 
     policy = DCDPPolicy.from_pretrained(policy_path).eval()
     policy.config.planning = planning
+    policy.config.planner_cpus = planner_cpus if planning == "async" else None
     pre, post = make_dcdp_pre_post_processors(policy.config)
     robot = PushTSim(PushTSimConfig(perturbation="constant", magnitude=2.0, seed=100_000))
     robot.connect()
@@ -58,6 +70,7 @@ def run(policy_path: str, planning: str, fps: int, seconds: float, gc_timer: GCT
         gc.callbacks.append(gc_timer)
     period = 1.0 / fps
     next_tick = time.perf_counter()
+    whole = []  # (start, end) of every whole tick
     for _ in range(ticks):
         started = time.perf_counter()
         obs = robot.get_observation()
@@ -69,22 +82,25 @@ def run(policy_path: str, planning: str, fps: int, seconds: float, gc_timer: GCT
         spans.append((t0, time.perf_counter()))
         policy_ms.append(1000 * (spans[-1][1] - t0))
         robot.send_action({"x.pos": float(action[0]), "y.pos": float(action[1])})
-        tick_ms.append(1000 * (time.perf_counter() - started))
+        whole.append((started, time.perf_counter()))
+        tick_ms.append(1000 * (whole[-1][1] - started))
         next_tick += period
         time.sleep(max(0.0, next_tick - time.perf_counter()))
     policy.close()
     if gc_timer is not None:
         gc.callbacks.remove(gc_timer)
     slowest = 1 + int(np.argmax(policy_ms[1:]))
+    slowest_whole = 1 + int(np.argmax(tick_ms[1:]))
     stats = {
         "planning": planning,
         "fps": fps,
         "ticks": ticks,
-        "policy_ms_median": float(np.median(policy_ms)),
-        "policy_ms_p99": float(np.percentile(policy_ms, 99)),
+        "policy_ms_median": float(np.median(policy_ms[1:])),
+        "policy_ms_p99": float(np.percentile(policy_ms[1:], 99)),
         "policy_ms_max_after_first": float(np.max(policy_ms[1:])),
         "first_tick_ms": float(policy_ms[0]),
         "tick_ms_max_after_first": float(np.max(tick_ms[1:])),
+        "policy_ticks_over_5ms": int(sum(t > 5.0 for t in policy_ms[1:])),
         "overruns": int(sum(t > 1000 * period for t in tick_ms[1:])),
         "late_actions": robot.late_actions,
         "max_coverage": robot.max_coverage,
@@ -95,7 +111,8 @@ def run(policy_path: str, planning: str, fps: int, seconds: float, gc_timer: GCT
             f"{len(durations)} passes (gen 0/1/2: "
             f"{'/'.join(str(sum(g == k for *_, g in gc_timer.passes)) for k in range(3))}), "
             f"longest {max(durations, default=0.0):.2f} ms; in the slowest tick "
-            f"({policy_ms[slowest]:.2f} ms): {gc_timer.inside(*spans[slowest]):.2f} ms"
+            f"({policy_ms[slowest]:.2f} ms): {gc_timer.inside(*spans[slowest]):.2f} ms; in the slowest whole "
+            f"tick ({tick_ms[slowest_whole]:.2f} ms): {gc_timer.inside(*whole[slowest_whole]):.2f} ms"
         )
     robot.disconnect()
     return stats
@@ -104,34 +121,64 @@ def run(policy_path: str, planning: str, fps: int, seconds: float, gc_timer: GCT
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--policy", default="models/pusht-dcdp-state")
-    p.add_argument("--fps", type=int, default=30)
+    p.add_argument("--fps", type=int, nargs="+", default=[30])
     p.add_argument("--seconds", type=float, default=30.0)
-    p.add_argument("--planning", nargs="+", default=["sync", "async"])
+    p.add_argument(
+        "--planning", nargs="+", default=["sync", "async"], choices=["sync", "async", "async_pinned"]
+    )
     p.add_argument("--gc", action="store_true", help="time the garbage collector's passes too")
+    p.add_argument(
+        "--planner-cpus",
+        type=int,
+        nargs="+",
+        default=[1],
+        help="the async_pinned rows' worker CPUs (--policy.planner_cpus)",
+    )
+    p.add_argument("--repeats", type=int, default=1, help="runs of each (fps, planning) row, interleaved")
+    p.add_argument("--out", default=None, help="also write the table, with this command, to this file")
     a = p.parse_args()
     torch.set_num_threads(1)
-    print(
-        "| planning | fps | ticks | policy ms median | p99 | max (after the first tick) | first tick ms | "
-        "whole tick max ms | overruns | robot late actions |"
-    )
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for planning in a.planning:
-        s = run(a.policy, planning, a.fps, a.seconds, GCTimer() if a.gc else None)
-        cells = [
-            planning,
-            s["fps"],
-            s["ticks"],
-            f"{s['policy_ms_median']:.2f}",
-            f"{s['policy_ms_p99']:.2f}",
-            f"{s['policy_ms_max_after_first']:.1f}",
-            f"{s['first_tick_ms']:.0f}",
-            f"{s['tick_ms_max_after_first']:.1f}",
-            s["overruns"],
-            s["late_actions"],
-        ]
-        print("| " + " | ".join(map(str, cells)) + " |", flush=True)
-        if "gc" in s:
-            print(f"  garbage collector ({planning}): {s['gc']}", flush=True)
+    lines = [
+        f"policy `{a.policy}`, {a.seconds:g} s per run, constant drift 2.0 px/step, {os.cpu_count()} CPUs, "
+        f"torch threads 1, load average before: {' '.join(open('/proc/loadavg').read().split()[:3])}, "
+        f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}",
+        f"command: `python scripts/tick_times.py {' '.join(sys.argv[1:])}`",
+        "",
+        "| planning | fps | run | ticks | policy ms, after the first tick: median | p99 | max | "
+        "policy ticks > 5 ms | first tick ms | whole tick max ms | overruns | robot late actions |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    print("\n".join(lines), flush=True)
+    for fps in a.fps:
+        for repeat in range(a.repeats):
+            for planning in a.planning:
+                cpus = a.planner_cpus if planning == "async_pinned" else None
+                mode = "async" if planning == "async_pinned" else planning
+                s = run(a.policy, mode, fps, a.seconds, GCTimer() if a.gc else None, cpus)
+                label = f"async, planner_cpus={cpus}" if cpus else planning
+                cells = [
+                    label,
+                    s["fps"],
+                    repeat + 1,
+                    s["ticks"],
+                    f"{s['policy_ms_median']:.2f}",
+                    f"{s['policy_ms_p99']:.2f}",
+                    f"{s['policy_ms_max_after_first']:.1f}",
+                    s["policy_ticks_over_5ms"],
+                    f"{s['first_tick_ms']:.0f}",
+                    f"{s['tick_ms_max_after_first']:.1f}",
+                    s["overruns"],
+                    s["late_actions"],
+                ]
+                lines.append("| " + " | ".join(map(str, cells)) + " |")
+                print(lines[-1], flush=True)
+                if "gc" in s:
+                    print(f"  garbage collector ({planning}): {s['gc']}", flush=True)
+    if a.out:
+        tmp = f"{a.out}.tmp"
+        with open(tmp, "w") as f:
+            f.write("\n".join(lines) + "\n")
+        os.replace(tmp, a.out)
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import threading
 
 import pytest
@@ -288,3 +289,52 @@ def test_ticks_per_step_holds_each_planned_action(diffusion_base, demo_root, pla
     policy.close()
     with pytest.raises(ValueError, match="ticks_per_step must be an integer >= 1"):
         type(policy.config)(base_policy_path=str(diffusion_base), ticks_per_step=0)
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="pinning apart needs two CPUs")
+def test_planner_cpus_pins_the_worker_and_moves_the_control_loop_off_them(diffusion_base, demo_root) -> None:
+    """planner_cpus: the base runs on those CPUs only, the control thread on the others while the worker
+    lives, and gets its CPUs back on close."""
+    allowed = os.sched_getaffinity(0)
+    worker_cpu = max(allowed)
+    policy = _policy(
+        diffusion_base,
+        demo_root,
+        n_action_steps=4,
+        execution="open_loop",
+        planning="async",
+        planning_clock="steps",
+        inference_delay=1,
+        planner_cpus=[worker_cpu],
+    )
+    seen = []  # (thread name, its CPUs) at every base call
+    inner = policy.base.predict_action_chunk
+
+    def recording(batch):
+        seen.append((threading.current_thread().name, os.sched_getaffinity(0)))
+        return inner(batch)
+
+    policy.base.predict_action_chunk = recording
+    pre, _ = make_dcdp_pre_post_processors(policy.config)
+    control = []
+    for o in env_observations(1, 10):
+        policy.select_action(pre(dict(o)))
+        control.append(os.sched_getaffinity(0))
+    assert seen[0] == ("MainThread", allowed)  # the episode's first chunk, before the worker exists
+    worker_calls = [cpus for name, cpus in seen[1:] if name.startswith("dcdp-planner")]
+    assert len(worker_calls) == len(seen) - 1 >= 2
+    assert all(cpus == {worker_cpu} for cpus in worker_calls)
+    assert control[-1] == allowed - {worker_cpu}
+    policy.close()
+    assert os.sched_getaffinity(0) == allowed
+
+
+def test_planner_cpus_must_leave_the_control_loop_a_cpu() -> None:
+    from lerobot_dcdp.planner import pin_apart
+
+    allowed = os.sched_getaffinity(0)
+    with pytest.raises(ValueError, match="leave no CPU to the control loop"):
+        pin_apart(set(allowed))
+    with pytest.raises(ValueError, match="are not all CPUs this process may use"):
+        pin_apart({max(allowed) + 1})
+    assert os.sched_getaffinity(0) == allowed  # nothing changed

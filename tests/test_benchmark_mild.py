@@ -10,9 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lerobot_dcdp.benchmark.report import goals_issue22, success_plot_path, table1, write_report
+from lerobot_dcdp.benchmark.report import (
+    baseline_cell,
+    goals_issue22,
+    success_plot_path,
+    table1,
+    write_report,
+)
 from lerobot_dcdp.benchmark.rollout import CONDITIONS, MAIN_CONDITIONS, MILD_CONDITIONS, expert_rollout
-from lerobot_dcdp.benchmark.run import episode_conflicts, main, parse_args
+from lerobot_dcdp.benchmark.run import episode_conflicts, main, model_methods, parse_args
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -45,7 +51,14 @@ def test_protocol_presets_and_explicit_flags() -> None:
     assert mild.episodes == 100 and mild.expert_episodes == 100 and mild.conditions == MILD_CONDITIONS
     assert mild.methods == ["open_loop", "object_anchored", "dcdp", "expert"]
     assert (mild.out, mild.report) == ("results/benchmark_mild.json", "docs/RESULTS_MILD.md")
-    assert mild.latency_steps == 0 and mild.videos == 0 and mild.all_methods
+    assert mild.latency_steps == 0 and mild.videos == 0
+    # the mild protocol's first correctors carry the base's rows, the gated ones only their DCDP row
+    assert model_methods(mild, "diffusion_demos") == ["open_loop", "object_anchored", "dcdp"]
+    assert model_methods(mild, "act_demos_late_gated") == ["dcdp"]
+    assert model_methods(main_args, "diffusion") == [m for m in main_args.methods if m != "expert"]
+    assert model_methods(main_args, "diffusion_demos_late_gated") == ["dcdp"]
+    explicit = parse_args(["--model", "act_demos_late_gated=x", "--methods", "open_loop", "dcdp"])
+    assert model_methods(explicit, "act_demos_late_gated") == ["open_loop", "dcdp"]
     # a flag given explicitly wins over the preset
     mine = parse_args(["--protocol", "mild", "--episodes", "2", "--conditions", "random_0.75"])
     assert mine.episodes == 2 and mine.expert_episodes == 2 and mine.conditions == ["random_0.75"]
@@ -170,6 +183,23 @@ def test_expert_row_goals_table_and_success_plot(tmp_path) -> None:
     assert "## Ceiling: the privileged scripted expert" in text and "ceiling row (`expert`)" in text
     assert "### Issue 22 goals" in text
     assert success_plot_path(Path("results/benchmark.json")).name == "success_vs_drift.png"
+
+
+def test_a_corrector_without_open_loop_rows_is_judged_against_its_bases_rows() -> None:
+    r = _results()
+    t, f = True, False
+    gated = dict(r["models"]["m"], corrector_sha256="d" * 12)
+    r["models"]["g"] = gated  # another corrector on the same base, its DCDP row only
+    r["cells"]["g|dcdp|constant_0.75"] = _cell("g", "dcdp", "constant_0.75", [t, t, f, f], [1, 1, 0.9, 0.8])
+    assert baseline_cell(r, "g", "open_loop", "constant_0.75") is r["cells"]["m|open_loop|constant_0.75"]
+    assert baseline_cell(r, "g", "dcdp", "static") is None  # a DCDP row is never borrowed
+    # g - m's open loop: success [0, 1, 0, 0] -> +25 points
+    assert "| constant_0.75 | 25 % | 50 % | +25 ± 25 |" in goals_issue22(r, "g")
+    r["models"]["g"] = dict(gated, base_weights_sha256="e" * 12)  # another base: nothing to borrow
+    assert baseline_cell(r, "g", "open_loop", "constant_0.75") is None and goals_issue22(r, "g") == ""
+    r["models"]["g"] = gated
+    r["cells"]["g|dcdp|constant_0.75"]["seeds"] = [5, 8]  # other seeds: not paired
+    assert baseline_cell(r, "g", "open_loop", "constant_0.75") is None
 
 
 def test_cells_of_another_episode_count_are_not_replaced_silently(tmp_path, capsys) -> None:

@@ -96,16 +96,24 @@ def test_shipped_checkpoint_loads_unchanged(corrector, tmp_path) -> None:
     from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
 
     # older shipped files keep the layout they were saved with (no ``corrector.`` prefix); newer ones have it
-    stored = {k.removeprefix("corrector."): v for k, v in load_file(corrector / "model.safetensors").items()}
+    raw = load_file(corrector / "model.safetensors")
+    gate = "completion_gate."  # a fitted completion gate's weights, beside the corrector's
+    stored = {k.removeprefix("corrector."): v for k, v in raw.items() if not k.startswith(gate)}
+    stored_gate = {k.removeprefix(gate): v for k, v in raw.items() if k.startswith(gate)}
     policy = DCDPPolicy.from_pretrained(corrector).eval()
     loaded = policy.corrector.state_dict()
     assert set(stored) == set(loaded), "the shipped file and the corrector disagree on names"
     for key, value in stored.items():
         assert torch.equal(loaded[key], value), key
     assert policy.corrector_sha256() == state_dict_sha256(stored)
+    assert (policy.completion_gate is not None) == bool(stored_gate) == policy.config.completion_gate
+    if stored_gate:
+        loaded_gate = policy.completion_gate.state_dict()
+        assert set(loaded_gate) == set(stored_gate)
+        assert all(torch.equal(loaded_gate[k], v) for k, v in stored_gate.items())
 
     policy.save_pretrained(tmp_path)
-    assert all(k.startswith("corrector.") for k in load_file(tmp_path / "model.safetensors"))
+    assert all(k.startswith(("corrector.", gate)) for k in load_file(tmp_path / "model.safetensors"))
     again = DCDPPolicy.from_pretrained(tmp_path).eval()
     pre, _ = make_dcdp_pre_post_processors(policy.config)
     obs = [pre(dict(o)) for o in env_observations(1, 3)]

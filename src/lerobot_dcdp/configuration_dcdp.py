@@ -76,6 +76,10 @@ class DCDPConfig(PreTrainedConfig):
             benchmarks: reproducible): planning starts ``inference_delay`` ticks before the chunk ends and
             its chunk is used exactly ``inference_delay`` ticks after its observation (the tick waits for the
             worker if it is slower), the same actions as ``planning=sync`` with that ``inference_delay``.
+        planner_cpus: CPUs the ``async`` worker thread (the base) runs on, e.g. ``[1]`` (default None:
+            wherever the scheduler puts it). While the worker lives, the thread that started it (the control
+            loop) runs on the other CPUs the process may use, so the base never preempts a tick on a shared
+            core.
         ticks_per_step: Control ticks per planned step: the control loop's rate over the rate the base was
             trained at (default 1; a 10 Hz base on a 30 Hz loop: 3). The policy computes an action (base,
             corrector, their observation histories) on every ``ticks_per_step``-th ``select_action`` call and
@@ -140,6 +144,12 @@ class DCDPConfig(PreTrainedConfig):
             below this (the object's centroid, raw anchor units per control step) keep the plan as their
             label, as still samples do: a world that moves the object this slowly is left to the base's own
             next plan. 0 (default): every synthesised motion is carried.
+        completion_gate: ``dcdp`` only: scale each step's correction by ``1 - p`` where ``p`` is a learned
+            probability that the task is nearly done (``completion_gate.py``), so the final alignment runs the
+            base's own plan. Fitted after stage 1 on demonstrations by ``dcdp-fit-completion-gate``, which
+            sets it; ``lerobot-train`` leaves the gate as it is. Default False.
+        completion_radius: The gate's "nearly done": the object's keypoints (``anchor_feature``) within this
+            mean distance (raw units) of their place on the demonstration's last frame (default 20).
         motions_per_sample: ``residual`` on plain demonstrations: independent motions drawn per dataset
             sample (the batch is repeated this many times).
         train_max_delay: ``residual`` on plain demonstrations: chunks that arrive late. Each synthesised
@@ -186,6 +196,7 @@ class DCDPConfig(PreTrainedConfig):
     inference_delay: int = 0
     planning: str = "sync"
     planning_clock: str = "wall"
+    planner_cpus: list[int] | None = None
     ticks_per_step: int = 1
     base_location: str = "local"
     te_weight: float = 0.5
@@ -203,6 +214,8 @@ class DCDPConfig(PreTrainedConfig):
     motion_label: str = "observed"
     motion_full_carry_at: float | None = None
     motion_min_carry_speed: float = 0.0
+    completion_gate: bool = False
+    completion_radius: float = 20.0
     motions_per_sample: int = 4
     train_max_delay: int = 0
 
@@ -258,6 +271,16 @@ class DCDPConfig(PreTrainedConfig):
         _check_choice("execution", self.execution, EXECUTION_MODES)
         _check_choice("planning", self.planning, PLANNING_MODES)
         _check_choice("planning_clock", self.planning_clock, PLANNING_CLOCKS)
+        if self.planner_cpus is not None:
+            cpus = self.planner_cpus
+            if (
+                not cpus
+                or len(set(cpus)) != len(cpus)
+                or any(isinstance(c, bool) or not isinstance(c, int) or c < 0 for c in cpus)
+            ):
+                raise ValueError(f"planner_cpus must be distinct CPU numbers >= 0, got {cpus!r}")
+            if self.planning != "async":
+                raise ValueError("planner_cpus pins the async worker: use it with --policy.planning=async")
         tps = self.ticks_per_step
         if isinstance(tps, bool) or not isinstance(tps, int) or tps < 1:
             raise ValueError(f"ticks_per_step must be an integer >= 1, got {tps!r}")
@@ -287,6 +310,8 @@ class DCDPConfig(PreTrainedConfig):
             raise ValueError(
                 f"motion_full_carry_at must be > 0 (or None for the default), got {self.motion_full_carry_at}"
             )
+        if not self.completion_radius > 0:
+            raise ValueError(f"completion_radius must be > 0, got {self.completion_radius!r}")
         if not self.motion_min_carry_speed >= 0:
             raise ValueError(f"motion_min_carry_speed must be >= 0, got {self.motion_min_carry_speed}")
         if self.motion_max_speed is not None and self.motion_min_carry_speed > self.motion_max_speed:

@@ -37,6 +37,7 @@ from lerobot_dcdp.base_policy import (
     resolve_base_reference,
 )
 from lerobot_dcdp.chunk_sources import ChunkSource, make_chunk_source
+from lerobot_dcdp.completion_gate import CompletionGate, gated_action
 from lerobot_dcdp.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.correction import state_dict_sha256
 from lerobot_dcdp.corrector import Corrector
@@ -108,6 +109,9 @@ class DCDPPolicy(PreTrainedPolicy):
             self.corrector = ReconstructCorrector(config, state_dims, image_keys, low, high)
         if dataset_stats is not None:
             self.corrector.set_input_scaling(dataset_stats)
+        # the learned "nearly done" gate (completion_gate.py), fitted by dcdp-fit-completion-gate
+        self.state_dims = state_dims  # the corrector's vector features and their sizes
+        self.completion_gate = CompletionGate(state_dims) if config.completion_gate else None
         self._register_load_state_dict_pre_hook(_legacy_keys)
         declared = {**(base.config.input_features or {}), **(config.input_features or {})}
         needed = [*self.corrector.frame_keys, *sorted(base.config.input_features or {})]
@@ -302,7 +306,11 @@ class DCDPPolicy(PreTrainedPolicy):
             )
         mode = self.modes[self.config.execution]
         planning = self._async if self.config.planning == "async" else self._sync
-        return planning.act(self.state, batch, mode)
+        action = planning.act(self.state, batch, mode)
+        if self.completion_gate is not None and self.config.execution == "dcdp":
+            plan = self.state.chunk[:, self.state.last_step]
+            action = gated_action(plan, action, self.completion_gate(batch))
+        return action
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor]) -> Tensor:
@@ -320,7 +328,10 @@ class DCDPPolicy(PreTrainedPolicy):
             prepared = self.source.observe(batch)
             self.corrector.push_frame(state, batch)
             chunk = self.source.chunk(prepared)[:, : self.config.n_action_steps]
-            return self.corrector.query_chunk(state, chunk)
+            corrected = self.corrector.query_chunk(state, chunk)
+            if self.completion_gate is not None:
+                corrected = gated_action(chunk, corrected, self.completion_gate(batch))
+            return corrected
         finally:
             self.source.restore(queues)
 

@@ -11,6 +11,8 @@ from both threads at once (:meth:`BackgroundPlanner.cancel` waits for a running 
 from __future__ import annotations
 
 import copy
+import os
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -41,9 +43,11 @@ class OneJobWorker:
 
     thread_name = "dcdp-planner"
 
-    def __init__(self) -> None:
+    def __init__(self, cpus: set[int] | None = None) -> None:
         self._pool: ThreadPoolExecutor | None = None
         self._job: tuple[Future, int, Any] | None = None
+        self._cpus = None if cpus is None else set(cpus)
+        self._control_cpus: tuple[int, set[int]] | None = None  # (thread id, its CPUs before pinning)
 
     @property
     def pending(self) -> bool:
@@ -60,7 +64,14 @@ class OneJobWorker:
         if self._job is not None:
             raise RuntimeError("a chunk is already being planned: take() it first")
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=self.thread_name)
+            if self._cpus is not None:
+                self._control_cpus = pin_apart(self._cpus)
+            self._pool = ThreadPoolExecutor(
+                max_workers=1,
+                thread_name_prefix=self.thread_name,
+                initializer=None if self._cpus is None else os.sched_setaffinity,
+                initargs=() if self._cpus is None else (0, self._cpus),
+            )
         self._job = (self._pool.submit(fn, *args), int(t_obs), context)
 
     def _finished(self, wait: bool) -> tuple[Any, int, Any] | None:
@@ -89,6 +100,13 @@ class OneJobWorker:
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
+        if self._control_cpus is not None:
+            thread, cpus = self._control_cpus
+            self._control_cpus = None
+            try:
+                os.sched_setaffinity(thread, cpus)
+            except OSError:  # that thread has ended: nothing to give back
+                pass
 
 
 class BackgroundPlanner(OneJobWorker):
@@ -97,10 +115,13 @@ class BackgroundPlanner(OneJobWorker):
     Args:
         source: The control thread's chunk source; the worker plans with a copy of its base whose
             observation history is the snapshot given to :meth:`submit`.
+        cpus: CPUs the worker thread runs on (``DCDPConfig.planner_cpus``; None: wherever the scheduler
+            puts it). The thread that starts the worker (the control loop) is moved to its other CPUs
+            until :meth:`close`.
     """
 
-    def __init__(self, source: ChunkSource) -> None:
-        super().__init__()
+    def __init__(self, source: ChunkSource, cpus: set[int] | None = None) -> None:
+        super().__init__(cpus)
         self._worker = ChunkSource(copy.copy(source.base))  # shares weights and config; own history
 
     def submit(
@@ -132,3 +153,23 @@ class BackgroundPlanner(OneJobWorker):
             return None
         (chunk, seconds, finished), t_obs, context = done
         return PlannedChunk(chunk, t_obs, context, seconds, finished)
+
+
+def pin_apart(cpus: set[int]) -> tuple[int, set[int]]:
+    """Move the calling thread off ``cpus`` (onto the rest of the CPUs it may use) and return its thread id
+    and former CPU set, so it can be given back. ``cpus`` must be CPUs the process may use and leave at least
+    one to the calling thread (else ValueError, nothing changed).
+    """
+    thread = threading.get_native_id()
+    allowed = os.sched_getaffinity(0)
+    if not set(cpus) <= allowed:
+        raise ValueError(
+            f"planner_cpus {sorted(cpus)} are not all CPUs this process may use ({sorted(allowed)})"
+        )
+    rest = allowed - set(cpus)
+    if not rest:
+        raise ValueError(
+            f"planner_cpus {sorted(cpus)} leave no CPU to the control loop (it may use {sorted(allowed)})"
+        )
+    os.sched_setaffinity(0, rest)
+    return thread, allowed

@@ -154,7 +154,8 @@ class AsyncPlanning:
         """Submit the next chunk when it is due; start it when it is ready and the current one has ended."""
         cfg, horizon = self.config, self.config.n_action_steps
         if self.planner is None:
-            self.planner = BackgroundPlanner(self.source)
+            cpus = cfg.planner_cpus
+            self.planner = BackgroundPlanner(self.source, None if cpus is None else set(cpus))
         planner, t = self.planner, state.t
         if not planner.pending and state.step >= horizon - self.lead(state):
             finish = self._finisher(mode, horizon - state.step, context)

@@ -125,6 +125,29 @@ def paired_diff(new: dict, old: dict, key: str) -> tuple[float, float]:
     return new["score"] - old["score"], (score_se(new) ** 2 + score_se(old) ** 2) ** 0.5
 
 
+def baseline_cell(results: dict, label: str, method: str, condition: str, delay: int = 0) -> dict | None:
+    """``label``'s own cell of ``method``, else -- for a baseline, which never calls the corrector -- the cell
+    of another corrector on the same base (weights hash) and the same seeds as ``label``'s DCDP cell."""
+    cells = results["cells"]
+    own = cells.get(cell_key(label, method, condition, delay))
+    if own is not None or method == "dcdp":
+        return own
+    models = results.get("models", {})
+    base = models.get(label, {}).get("base_weights_sha256")
+    mine = cells.get(cell_key(label, "dcdp", condition, delay))
+    for other, ident in models.items():
+        cell = cells.get(cell_key(other, method, condition, delay))
+        if (
+            other != label
+            and cell is not None
+            and base is not None
+            and ident.get("base_weights_sha256") == base
+            and (mine is None or cell.get("seeds") == mine.get("seeds"))
+        ):
+            return cell
+    return None
+
+
 def goals_issue22(results: dict, label: str) -> str:
     """Issue 22's goals, DCDP against open loop on the same seeds, per condition: no harm anywhere (success
     >= -4 points, score >= -0.01) and, where success is attainable (constant / random drift up to 1.0 px per
@@ -133,12 +156,13 @@ def goals_issue22(results: dict, label: str) -> str:
     conds = [
         c
         for c in _conditions(cells, label)
-        if cells.get(cell_key(label, "dcdp", c)) and cells.get(cell_key(label, "open_loop", c))
+        if cells.get(cell_key(label, "dcdp", c)) and baseline_cell(results, label, "open_loop", c)
     ]
     if not any(magnitude(c) <= ATTAINABLE_MAX_DRIFT for c in conds):
         return ""
     lines = [
-        "DCDP - open loop on the same seeds, ± the paired standard error. Margin = difference - goal "
+        "DCDP - open loop on the same seeds, ± the paired standard error (a corrector without its own "
+        "open-loop row: the row of another corrector on the same base and seeds). Margin = difference - goal "
         "(>= 0: met).",
         "",
         "| condition | open loop success | DCDP success | Δ success (points) | Δ score | no harm: "
@@ -151,7 +175,7 @@ def goals_issue22(results: dict, label: str) -> str:
         return f"{'met' if margin >= 0 else '**missed**'} ({margin:+.{digits}f})"
 
     for c in conds:
-        d, o = cells[cell_key(label, "dcdp", c)], cells[cell_key(label, "open_loop", c)]
+        d, o = cells[cell_key(label, "dcdp", c)], baseline_cell(results, label, "open_loop", c)
         ds, ds_se = paired_diff(d, o, "successes")
         dr, dr_se = paired_diff(d, o, "max_rewards")
         attain = (
@@ -187,7 +211,7 @@ def gaps(results: dict, label: str) -> str:
     cells = results["cells"]
 
     def get(m: str, c: str) -> dict | None:
-        return cells.get(f"{label}|{m}|{c}")
+        return baseline_cell(results, label, m, c)
 
     out = []
     for c in ("constant_2.0", "random_2.0"):
@@ -314,7 +338,8 @@ def plot_delay(results: dict, path: Path) -> bool:
 def plot(results: dict, path: Path, metric: str = "score") -> None:
     """Score (± standard error) vs drift magnitude, per method, for constant and random drift; with
     ``metric="success"`` the success rate (%, ± its binomial s.e.). The privileged expert's cells, when
-    present, are drawn in every model's panels as the ceiling."""
+    present, are drawn in every model's panels as the ceiling; a corrector without its own baseline rows is
+    drawn with its base's (``baseline_cell``)."""
     if metric not in ("score", "success"):
         raise ValueError(f"metric must be 'score' or 'success', got {metric!r}")
     try:
@@ -336,7 +361,16 @@ def plot(results: dict, path: Path, metric: str = "score") -> None:
             ax = axes[row][col]
             conds = [("static", 0.0)] + [(f"{kind}_{m}", m) for m in MAGNITUDES]
             for who, m in [(label, m) for m in METHOD_NAMES] + [(EXPERT, EXPERT)]:
-                pts = [(x, cells.get(cell_key(who, m, c))) for c, x in conds]
+                # a corrector without its own baseline rows shows those of its base (``baseline_cell``)
+                pts = [
+                    (
+                        x,
+                        cells.get(cell_key(EXPERT, m, c))
+                        if who == EXPERT
+                        else baseline_cell(results, who, m, c),
+                    )
+                    for c, x in conds
+                ]
                 pts = [(x, cell) for x, cell in pts if cell]
                 if pts:
                     _score_line(ax, pts, m, metric)
@@ -423,8 +457,8 @@ def shown_path(path: str) -> str:
 def realtime_section(realtime_dir: Path) -> list[str]:
     """The real-time measurements (issue 23) as report lines: every ``*.md`` in ``realtime_dir``, in name
     order, as written by the script that made it (``scripts/client_scores.sh``,
-    ``scripts/rollout_deadlines.sh``), headings moved three levels down; none when the folder is absent or
-    empty."""
+    ``scripts/rollout_deadlines.sh``, ``scripts/tick_times.py``), headings moved three levels down; none when
+    the folder is absent or empty."""
     files = sorted(realtime_dir.glob("*.md")) if realtime_dir.is_dir() else []
     if not files:
         return []
@@ -432,8 +466,9 @@ def realtime_section(realtime_dir: Path) -> list[str]:
         "## Real time (issue 23): asynchronous planning and the base on LeRobot's policy server",
         "",
         f"Not `dcdp-benchmark`'s rollouts: the summaries in `{shown_path(str(realtime_dir))}`, written by "
-        "`scripts/rollout_deadlines.sh` (`rollout_deadlines_*`) and `scripts/client_scores.sh` "
-        "(`client_scores_*`), copied here with their headings moved down (real-time runs on `pusht_sim`; "
+        "`scripts/rollout_deadlines.sh` (`rollout_deadlines_*`), `scripts/client_scores.sh` "
+        "(`client_scores_*`) and `scripts/tick_times.py` (`tick_times*`), copied here with their headings "
+        "moved down (real-time runs on `pusht_sim`; "
         "how to read them: `docs/ROLLOUT.md`).",
         "",
     ]

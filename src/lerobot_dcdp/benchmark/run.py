@@ -34,6 +34,7 @@ import numpy as np
 
 from lerobot_dcdp.benchmark import shipped_model
 from lerobot_dcdp.benchmark.report import EXPERT, cell_key
+from lerobot_dcdp.correction import state_dict_sha256
 
 METHODS = ["open_loop", "closed_loop", "temporal_ensemble", "object_anchored", "dcdp"]
 DEFAULT_MODELS = {
@@ -45,6 +46,8 @@ DEFAULT_MODELS = {
     "diffusion_demos_late": shipped_model("pusht-dcdp-state-demos-late"),
     "act_demos_late": shipped_model("pusht-dcdp-act-state-demos-late"),
     "diffusion_teleop": shipped_model("pusht-dcdp-state-teleop"),
+    "diffusion_demos_late_gated": shipped_model("pusht-dcdp-state-demos-late-gated"),
+    "act_demos_late_gated": shipped_model("pusht-dcdp-act-state-demos-late-gated"),
 }
 #: these correctors share their base with ``diffusion`` / ``act``: only their own DCDP row is run by default
 DEFAULT_METHODS = {
@@ -54,7 +57,11 @@ DEFAULT_METHODS = {
     "diffusion_demos_late": ["dcdp"],
     "act_demos_late": ["dcdp"],
     "diffusion_teleop": ["dcdp"],
+    "diffusion_demos_late_gated": ["dcdp"],
+    "act_demos_late_gated": ["dcdp"],
 }
+#: the mild protocol's correctors: the first two carry the base's rows (open loop, anchoring) too
+MILD_MODELS = ("diffusion_demos", "act_demos", "diffusion_demos_late_gated", "act_demos_late_gated")
 
 
 def machine() -> dict:
@@ -105,6 +112,8 @@ def load_model(corrector_dir: str):
         "base_weights_sha256": policy.config.base_weights_sha256,
         "corrector_params": sum(p.numel() for p in policy.parameters()),
     }
+    if policy.completion_gate is not None:  # not part of corrector_sha256: its own identity
+        identity["completion_gate_sha256"] = state_dict_sha256(policy.completion_gate.state_dict())
     return policy, pre, post, identity
 
 
@@ -124,7 +133,8 @@ def protocols() -> dict[str, dict]:
 
     return {
         "main": {
-            "models": None,  # DEFAULT_MODELS, with DEFAULT_METHODS
+            "models": None,  # DEFAULT_MODELS
+            "model_methods": DEFAULT_METHODS,  # these share their base with another: their DCDP row only
             "methods": METHODS,
             "conditions": MAIN_CONDITIONS,
             "episodes": 50,
@@ -135,7 +145,8 @@ def protocols() -> dict[str, dict]:
             "realtime": "results/realtime",  # the real-time summaries the report shows (issue 23)
         },
         "mild": {
-            "models": {k: DEFAULT_MODELS[k] for k in ("diffusion_demos", "act_demos")},
+            "models": {k: DEFAULT_MODELS[k] for k in MILD_MODELS},
+            "model_methods": {k: ["dcdp"] for k in MILD_MODELS[2:]},  # the others: every method
             "methods": ["open_loop", "object_anchored", "dcdp", EXPERT],
             "conditions": MILD_CONDITIONS,
             "episodes": 100,
@@ -219,16 +230,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         if a.model
         else {k: v for k, v in (preset["models"] or DEFAULT_MODELS).items() if Path(v).is_dir()}
     )
-    # explicit correctors (or a protocol that names its own) run every requested method
-    a.all_methods = bool(a.model) or preset["models"] is not None
+    # explicit correctors run every requested method; the protocol's own, those it names for them
+    a.model_methods = {} if a.model else preset["model_methods"]
     return a
 
 
 def model_methods(a: argparse.Namespace, label: str) -> list[str]:
     """The base/corrector methods run for ``label`` (before the anchor-feature check)."""
-    return [
-        m for m in a.methods if m != EXPERT and (a.all_methods or m in DEFAULT_METHODS.get(label, METHODS))
-    ]
+    return [m for m in a.methods if m != EXPERT and m in a.model_methods.get(label, METHODS)]
 
 
 def episode_conflicts(cells: dict, wanted: dict[str, int]) -> list[str]:
@@ -471,8 +480,9 @@ def _fresh(cell: dict | None, ident: dict, seeds: list[int], max_steps: int) -> 
         return False
     i = cell.get("identity", {})
     # the baselines never call the corrector: for them only the base has to be the same
-    same_corrector = (
-        cell.get("method") not in ("dcdp", None) or i.get("corrector_sha256") == ident["corrector_sha256"]
+    same_corrector = cell.get("method") not in ("dcdp", None) or (
+        i.get("corrector_sha256") == ident["corrector_sha256"]
+        and i.get("completion_gate_sha256") == ident.get("completion_gate_sha256")
     )
     return (
         same_corrector

@@ -1,0 +1,84 @@
+"""A learned completion gate: leave the base's plan uncorrected once the task is nearly done.
+
+Correcting a chunk for the object's motion keeps the pushes' geometry relative to the object, which is what
+transport needs; in the final alignment it moves the last pushes' end point off the goal by the drift
+(docs/ANALYSIS.md, "does correcting near the goal cost the final alignment?"). The gate learns, from plain
+demonstrations, where "nearly done" is: a frame is *near completion* when the object's keypoints are within
+``radius`` (mean distance, raw units) of where they are on the episode's last frame -- a demonstration ends
+with the task done, so its last frame is the goal, whatever the task. At run time the policy scales the
+correction by ``1 - p(near)`` (``DCDPPolicy``; ``completion_gate=true``). Fitted after stage 1 by
+``dcdp-fit-completion-gate`` (``fit_completion_gate.py``).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+
+def completion_labels(points: Tensor, episode_index: Tensor, radius: float) -> Tensor:
+    """Whether each frame's object is within ``radius`` of its episode's last frame (pure).
+
+    Args:
+        points: Object keypoints (T, N, 2) in raw units, frames in dataset order.
+        episode_index: Episode of each frame (T,); an episode's frames are contiguous, its last frame last.
+        radius: Largest mean keypoint distance (raw units) to the last frame's keypoints that counts as near.
+
+    Returns:
+        A bool tensor (T,).
+    """
+    if points.ndim != 3 or points.shape[-1] != 2:
+        raise ValueError(f"points must be (T, N, 2) keypoints, got shape {tuple(points.shape)}")
+    if episode_index.shape != points.shape[:1]:
+        raise ValueError(f"episode_index must be ({points.shape[0]},), got {tuple(episode_index.shape)}")
+    if radius <= 0:
+        raise ValueError(f"radius must be > 0, got {radius}")
+    # index of each frame's episode's last frame: the last position where that episode index occurs
+    change = torch.ones_like(episode_index, dtype=torch.bool)
+    change[:-1] = episode_index[1:] != episode_index[:-1]
+    ends = torch.nonzero(change).squeeze(1)  # last frame of each run
+    run_of = torch.cumsum(torch.cat([torch.zeros(1, dtype=torch.long), change[:-1].long()]), 0)
+    last = points[ends[run_of]]
+    return (points - last).norm(dim=-1).mean(-1) < radius
+
+
+class CompletionGate(nn.Module):
+    """Probability (B,) that the task is nearly done, from the current observation's state features.
+
+    Args:
+        dims: ``{feature: size}`` of the (base-normalised) state features it reads, in order.
+        hidden: Hidden width of its two-layer MLP.
+    """
+
+    def __init__(self, dims: dict[str, int], hidden: int = 64) -> None:
+        super().__init__()
+        if not dims:
+            raise ValueError("the completion gate needs at least one state feature to read")
+        self.keys = list(dims)
+        size = sum(dims.values())
+        self.net = nn.Sequential(
+            nn.Linear(size, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1)
+        )
+
+    def inputs(self, batch: dict[str, Tensor]) -> Tensor:
+        """The gate's input (B, D): its features of the newest frame, concatenated."""
+        parts = []
+        for key in self.keys:
+            x = batch[key]
+            parts.append(x[:, -1] if x.ndim == 3 else x)  # (B, n_obs, D) histories: the newest frame
+        return torch.cat(parts, dim=-1)
+
+    def logit(self, x: Tensor) -> Tensor:
+        """Logits (B,) of inputs ``x`` (B, D)."""
+        return self.net(x).squeeze(-1)
+
+    def forward(self, batch: dict[str, Tensor]) -> Tensor:
+        """p(near completion) (B,) of the observation in ``batch``."""
+        return torch.sigmoid(self.logit(self.inputs(batch)))
+
+
+def gated_action(plan: Tensor, action: Tensor, near: Tensor) -> Tensor:
+    """The corrected ``action`` (B, ...), its correction over ``plan`` (same shape) scaled by ``1 - near``
+    (B,): one action (B, A) or a whole chunk (B, H, A)."""
+    keep = (1.0 - near).reshape(-1, *[1] * (action.ndim - 1))
+    return plan + keep * (action - plan)

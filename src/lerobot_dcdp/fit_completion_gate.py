@@ -1,0 +1,150 @@
+"""``dcdp-fit-completion-gate``: a corrector's completion gate fitted on demonstrations, as a new folder.
+
+The gate (``completion_gate.py``) learns where a demonstration is nearly done -- the object's keypoints
+(``anchor_feature``) within ``--radius`` of their place on the episode's last frame -- from the state
+features the corrector reads, normalised as the base normalises them. Everything else of the corrector is
+copied unchanged; the new folder (``config.json`` with ``completion_gate=true``, the weights with the gate's)
+appears only when complete and loads with ``--policy.path`` like any corrector.
+
+    dcdp-fit-completion-gate --policy models/pusht-dcdp-state-teleop --repo-id local/pusht_expert \\
+        --root data/pusht_expert --out models/pusht-dcdp-state-teleop-gated
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from lerobot_dcdp.atomic_dataset import staged_dir
+from lerobot_dcdp.base_policy import portable_base_reference
+from lerobot_dcdp.completion_gate import CompletionGate, completion_labels
+
+
+def gate_data(policy, dataset) -> tuple[Tensor, Tensor, Tensor]:
+    """Inputs (T, D) of ``policy``'s gate for every frame of ``dataset``, the frames' episode indices (T,)
+    and the object's raw keypoints (T, N, 2)."""
+    config = policy.config
+    if not config.anchor_feature:
+        raise ValueError(
+            "the completion gate's labels need the object's keypoints: the corrector has no anchor_feature"
+        )
+    keys = list(dict.fromkeys([*policy.completion_gate.keys, config.anchor_feature]))
+    missing = [k for k in keys if k not in dataset.meta.features]
+    if missing:
+        raise ValueError(f"the dataset has no {missing} (it has {sorted(dataset.meta.features)})")
+    table = dataset.hf_dataset.with_format("numpy")
+    raw = {k: torch.as_tensor(np.stack(table[k]), dtype=torch.float32) for k in keys}
+    episodes = torch.as_tensor(np.asarray(table["episode_index"]), dtype=torch.long)
+    order = torch.as_tensor(np.asarray(table["index"]), dtype=torch.long).argsort(stable=True)
+    raw = {k: v[order] for k, v in raw.items()}
+    x = torch.cat([policy.normalizer(k, raw[k]) for k in policy.completion_gate.keys], dim=-1)
+    points = raw[config.anchor_feature].reshape(len(episodes), -1, 2)
+    return x, episodes[order], points
+
+
+def fit_gate(
+    gate: CompletionGate,
+    x: Tensor,
+    near: Tensor,
+    episodes: Tensor,
+    steps: int = 3000,
+    lr: float = 1e-3,
+    val_fraction: float = 0.1,
+    seed: int = 0,
+) -> dict[str, float]:
+    """Train ``gate`` on inputs ``x`` (T, D) and labels ``near`` (T,) with full-batch Adam on the binary
+    cross-entropy, a ``val_fraction`` of the episodes held out (rounded down; none: the held-out accuracies
+    are NaN); returns the accuracies and label rates."""
+    generator = torch.Generator().manual_seed(seed)
+    ids = episodes.unique()
+    held = ids[torch.randperm(len(ids), generator=generator)[: int(val_fraction * len(ids))]]
+    val = torch.isin(episodes, held)
+    if val.all():
+        raise ValueError(f"val_fraction {val_fraction} leaves no episode of {len(ids)} to train on")
+    train = ~val
+    target = near.float()
+    torch.manual_seed(seed)
+    for p in gate.parameters():  # a fresh start, reproducible from ``seed``
+        if p.ndim > 1:
+            torch.nn.init.kaiming_uniform_(p, a=5**0.5)
+        else:
+            torch.nn.init.zeros_(p)
+    optimizer = torch.optim.Adam(gate.parameters(), lr=lr)
+    for _ in range(steps):
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(gate.logit(x[train]), target[train])
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    with torch.no_grad():
+        guess = gate.logit(x) > 0
+
+    def accuracy(mask: Tensor) -> float:
+        return float((guess[mask] == near[mask]).float().mean()) if mask.any() else float("nan")
+
+    return {
+        "loss": float(loss.detach()),
+        "train_accuracy": accuracy(train),
+        "val_accuracy": accuracy(val),
+        "near_rate": float(target.mean()),
+        "val_near_recall": accuracy(val & near),
+        "val_far_accuracy": accuracy(val & ~near),
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--policy", required=True, help="the corrector's pretrained_model folder")
+    p.add_argument("--repo-id", required=True, help="demonstrations (LeRobotDataset repo id)")
+    p.add_argument("--root", required=True, help="the demonstrations' local folder")
+    p.add_argument("--out", required=True, help="the new corrector folder (must not exist)")
+    p.add_argument("--radius", type=float, default=20.0, help="'nearly done' (raw anchor units)")
+    p.add_argument("--steps", type=int, default=3000)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--val-fraction", type=float, default=0.1, help="episodes held out for the accuracy")
+    p.add_argument("--seed", type=int, default=0)
+    a = p.parse_args(argv)
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+
+    out = Path(a.out)
+    if out.exists():
+        sys.exit(f"--out {out} exists: give a new folder")
+    torch.set_num_threads(1)
+    source = Path(a.policy)
+    policy = DCDPPolicy.from_pretrained(str(source))
+    policy.config.completion_gate, policy.config.completion_radius = True, a.radius
+    policy.completion_gate = CompletionGate(policy.state_dims)
+    dataset = LeRobotDataset(a.repo_id, root=a.root)
+    x, episodes, points = gate_data(policy, dataset)
+    near = completion_labels(points, episodes, a.radius)
+    stats = fit_gate(policy.completion_gate, x, near, episodes, a.steps, a.lr, a.val_fraction, a.seed)
+    with staged_dir(out) as tmp:
+        tmp.mkdir()
+        for f in source.iterdir():
+            if f.is_file() and f.name not in ("config.json", "model.safetensors"):
+                shutil.copy2(f, tmp / f.name)
+        policy.save_pretrained(tmp)
+        # the base is recorded relative to the folder saved into; the folder's final place is ``out``
+        saved = json.loads((tmp / "config.json").read_text())
+        cfg = policy.config
+        saved["base_policy_path"] = portable_base_reference(cfg.base_policy_path, cfg.pretrained_path, out)
+        saved["pretrained_path"] = None  # the folder it is loaded from says where it is
+        (tmp / "config.json").write_text(json.dumps(saved, indent=4))
+    print(
+        f"completion gate fitted on {len(episodes)} frames of {len(episodes.unique())} episodes "
+        f"(near: {100 * stats['near_rate']:.1f} %); held-out episodes: accuracy {stats['val_accuracy']:.3f}, "
+        f"near recalled {stats['val_near_recall']:.3f}, far kept {stats['val_far_accuracy']:.3f}; "
+        f"wrote {out}"
+    )
+
+
+if __name__ == "__main__":
+    main()

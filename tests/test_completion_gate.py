@@ -1,0 +1,113 @@
+"""The completion gate: labels from demonstrations, the gated action, and ``dcdp-fit-completion-gate``."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from helpers import env_observations, make_dcdp_policy
+
+from lerobot_dcdp.completion_gate import completion_labels, gated_action
+from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+
+
+def test_labels_mark_the_frames_near_their_episodes_last_frame() -> None:
+    # two episodes of one keypoint pair each moving along x: 0, 15, 30 then 100, 95, 60, 50
+    xs = torch.tensor([0.0, 15.0, 30.0, 100.0, 95.0, 60.0, 50.0])
+    points = torch.stack([torch.stack([xs, torch.zeros(7)], -1), torch.stack([xs, torch.ones(7)], -1)], 1)
+    episodes = torch.tensor([3, 3, 3, 7, 7, 7, 7])
+    near = completion_labels(points, episodes, radius=20.0)
+    assert near.tolist() == [False, True, True, False, False, True, True]
+    with pytest.raises(ValueError, match="radius"):
+        completion_labels(points, episodes, radius=0.0)
+    with pytest.raises(ValueError, match="episode_index"):
+        completion_labels(points, episodes[:3], radius=1.0)
+
+
+def test_gated_action_keeps_the_plan_where_near() -> None:
+    plan, action = torch.zeros(3, 2), torch.ones(3, 2)
+    out = gated_action(plan, action, torch.tensor([1.0, 0.0, 0.25]))
+    torch.testing.assert_close(out, torch.tensor([[0.0, 0.0], [1.0, 1.0], [0.75, 0.75]]))
+    chunk = gated_action(torch.zeros(3, 4, 2), torch.ones(3, 4, 2), torch.tensor([1.0, 0.0, 0.25]))
+    torch.testing.assert_close(chunk[:, 2], out)  # every step of a chunk scaled alike
+
+
+def _gated_policy(diffusion_base, demo_root, bias: float):
+    policy = make_dcdp_policy(
+        diffusion_base,
+        demo_root,
+        correction="residual",
+        latent_dim=4,
+        n_action_steps=4,
+        anchor_feature="observation.environment_state",
+        completion_gate=True,
+    ).eval()
+    torch.manual_seed(1)
+    with torch.no_grad():  # a corrector that moves the plan
+        for p in policy.corrector.residual.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+        last = policy.completion_gate.net[-1]
+        last.weight.zero_()
+        last.bias.fill_(bias)  # p(near) = sigmoid(bias) everywhere
+    return policy
+
+
+def _episode(policy, observations) -> tuple[torch.Tensor, torch.Tensor]:
+    """Actions and the base's planned actions at the same steps."""
+    torch.manual_seed(3)
+    policy.reset()
+    actions, plans = [], []
+    for o in observations:
+        actions.append(policy.select_action(dict(o)))
+        plans.append(policy.planned_chunk[:, policy.last_step].clone())
+    return torch.stack(actions), torch.stack(plans)
+
+
+def test_a_gate_that_says_done_runs_the_plan_and_one_that_says_not_corrects(diffusion_base, demo_root):
+    near = _gated_policy(diffusion_base, demo_root, bias=30.0)
+    far = _gated_policy(diffusion_base, demo_root, bias=-30.0)
+    pre, _ = make_dcdp_pre_post_processors(near.config)
+    observations = [pre(dict(o)) for o in env_observations(2, 10)]
+    actions, plans = _episode(near, observations)
+    torch.testing.assert_close(actions, plans)
+    far_actions, far_plans = _episode(far, observations)
+    torch.testing.assert_close(far_plans, plans)  # same base, same plans
+    far.completion_gate = None  # the same corrector ungated
+    ungated, _ = _episode(far, observations)
+    torch.testing.assert_close(far_actions, ungated, atol=1e-6, rtol=0)
+    assert (ungated - plans).abs().max() > 1e-3  # the corrector does correct
+
+
+def test_fit_cli_writes_a_corrector_whose_gate_knows_the_episode_ends(diffusion_base, demo_root, tmp_path):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_dcdp.fit_completion_gate import gate_data, main
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+
+    policy = make_dcdp_policy(
+        diffusion_base,
+        demo_root,
+        correction="residual",
+        latent_dim=4,
+        anchor_feature="observation.environment_state",
+    )
+    src = tmp_path / "corrector"
+    policy.save_pretrained(src)
+    out = tmp_path / "gated"
+    argv = ["--policy", str(src), "--repo-id", "local/test", "--root", str(demo_root), "--out", str(out)]
+    main([*argv, "--steps", "1500", "--radius", "30", "--val-fraction", "0"])  # two episodes: fit both
+    loaded = DCDPPolicy.from_pretrained(str(out))
+    assert loaded.config.completion_gate and loaded.config.completion_radius == 30
+    assert json.loads((out / "config.json").read_text())["base_policy_path"] != str(diffusion_base)
+    for name, tensor in policy.corrector.state_dict().items():  # the corrector itself unchanged
+        torch.testing.assert_close(loaded.corrector.state_dict()[name], tensor)
+    x, episodes, points = gate_data(loaded, LeRobotDataset("local/test", root=demo_root))
+    near = completion_labels(points, episodes, 30.0)
+    assert 0 < near.float().mean() < 1
+    with torch.no_grad():
+        guess = loaded.completion_gate.logit(x) > 0
+    # it learned the demonstrations' end, not a constant: right on most frames of both kinds
+    assert guess[near].float().mean() > 0.8 and (~guess[~near]).float().mean() > 0.8
+    with pytest.raises(SystemExit, match="exists"):
+        main(argv)
