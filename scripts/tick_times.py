@@ -11,6 +11,8 @@ Usage: .venv/bin/python scripts/tick_times.py [--policy models/pusht-dcdp-state]
   time inside the slowest tick (does the collector make the worst tick?).
   async_pinned: async with the worker on ``--planner-cpus`` and the control loop on the other CPUs
   (``--policy.planner_cpus``). ``--repeats``: each row that many times, interleaved (the spread between runs).
+  The header records the process's scheduling policy: ``chrt -f 20 python scripts/tick_times.py ...`` runs the
+  loop (and the worker) at real-time FIFO priority.
 """
 
 from __future__ import annotations
@@ -138,8 +140,13 @@ def main() -> None:
     p.add_argument("--out", default=None, help="also write the table, with this command, to this file")
     a = p.parse_args()
     torch.set_num_threads(1)
+    policy_names = {os.SCHED_OTHER: "SCHED_OTHER", os.SCHED_FIFO: "SCHED_FIFO", os.SCHED_RR: "SCHED_RR"}
+    sched = policy_names.get(os.sched_getscheduler(0), str(os.sched_getscheduler(0)))
+    priority = os.sched_getparam(0).sched_priority
     lines = [
         f"policy `{a.policy}`, {a.seconds:g} s per run, constant drift 2.0 px/step, {os.cpu_count()} CPUs, "
+        f"scheduler {sched}{f' priority {priority}' if priority else ''} (real-time: started under "
+        "`chrt -f <priority>`), "
         f"torch threads 1, load average before: {' '.join(open('/proc/loadavg').read().split()[:3])}, "
         f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}",
         f"command: `python scripts/tick_times.py {' '.join(sys.argv[1:])}`",
