@@ -8,7 +8,7 @@ import pytest
 import torch
 from helpers import env_observations, make_dcdp_policy
 
-from lerobot_dcdp.completion_gate import completion_labels, gated_action
+from lerobot_dcdp.completion_gate import completion_labels, gated_action, travel_scale
 from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
 
 
@@ -23,6 +23,20 @@ def test_labels_mark_the_frames_near_their_episodes_last_frame() -> None:
         completion_labels(points, episodes, radius=0.0)
     with pytest.raises(ValueError, match="episode_index"):
         completion_labels(points, episodes[:3], radius=1.0)
+
+
+def test_travel_scale_is_the_median_episodes_farthest_distance_to_its_end() -> None:
+    # farthest distances to the end: 30 (episode 3), 50 (episode 7), 10 (episode 9) -> median 30
+    xs = torch.tensor([0.0, 15.0, 30.0, 100.0, 95.0, 60.0, 50.0, 4.0, 14.0, 10.0, 4.0])
+    points = torch.stack([xs, torch.zeros(11)], -1)[:, None]
+    episodes = torch.tensor([3, 3, 3, 7, 7, 7, 7, 9, 9, 9, 9])
+    assert travel_scale(points, episodes) == pytest.approx(30.0)
+    # a fraction of it labels the same frames whatever the unit (pixels or metres)
+    for unit in (1.0, 0.001):
+        near = completion_labels(points * unit, episodes, 0.6 * travel_scale(points * unit, episodes))
+        assert near.tolist() == [False, True, True, False, False, True, True, True, True, True, True]
+    with pytest.raises(ValueError, match="does not move"):
+        travel_scale(torch.zeros(4, 1, 2), torch.tensor([0, 0, 1, 1]))
 
 
 def test_gated_action_keeps_the_plan_where_near() -> None:
@@ -111,3 +125,9 @@ def test_fit_cli_writes_a_corrector_whose_gate_knows_the_episode_ends(diffusion_
     assert guess[near].float().mean() > 0.8 and (~guess[~near]).float().mean() > 0.8
     with pytest.raises(SystemExit, match="exists"):
         main(argv)
+    # by default the radius is a fraction of the demonstrations' own travel, recorded in the config
+    main([*argv[:-1], str(tmp_path / "gated_default"), "--steps", "10", "--val-fraction", "0"])
+    recorded = DCDPPolicy.from_pretrained(str(tmp_path / "gated_default")).config.completion_radius
+    assert recorded == pytest.approx(0.15 * travel_scale(points, episodes))
+    with pytest.raises(SystemExit, match="radius-fraction"):
+        main([*argv[:-1], str(tmp_path / "bad"), "--radius-fraction", "1.5"])

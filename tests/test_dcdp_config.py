@@ -25,6 +25,7 @@ def test_missing_base_is_refused() -> None:
         ("motion_label", "pushed"),
         ("motion_full_carry_at", 0.0),
         ("motion_min_carry_speed", -1.0),
+        ("completion_radius", 0.0),
         ("planner_cpus", []),
         ("planner_cpus", [1, 1]),
         ("planner_cpus", [-1]),

@@ -5,7 +5,9 @@ transport needs; in the final alignment it moves the last pushes' end point off 
 (docs/ANALYSIS.md, "does correcting near the goal cost the final alignment?"). The gate learns, from plain
 demonstrations, where "nearly done" is: a frame is *near completion* when the object's keypoints are within
 ``radius`` (mean distance, raw units) of where they are on the episode's last frame -- a demonstration ends
-with the task done, so its last frame is the goal, whatever the task. At run time the policy scales the
+with the task done, so its last frame is the goal, whatever the task. The radius is a fraction of the
+demonstrations' own scale (``travel_scale``: how far the object typically travels to its end), so the same
+default fits pixels, metres or any other unit. At run time the policy scales the
 correction by ``1 - p(near)`` (``DCDPPolicy``; ``completion_gate=true``). Fitted after stage 1 by
 ``dcdp-fit-completion-gate`` (``fit_completion_gate.py``).
 """
@@ -14,6 +16,49 @@ from __future__ import annotations
 
 import torch
 from torch import Tensor, nn
+
+
+def distance_to_end(points: Tensor, episode_index: Tensor) -> Tensor:
+    """Mean keypoint distance (T,) of each frame's object to its place on its episode's last frame (pure).
+
+    Args:
+        points: Object keypoints (T, N, 2) in raw units, frames in dataset order.
+        episode_index: Episode of each frame (T,); an episode's frames are contiguous, its last frame last.
+
+    Returns:
+        A float tensor (T,) in the keypoints' units.
+    """
+    if points.ndim != 3 or points.shape[-1] != 2:
+        raise ValueError(f"points must be (T, N, 2) keypoints, got shape {tuple(points.shape)}")
+    if episode_index.shape != points.shape[:1]:
+        raise ValueError(f"episode_index must be ({points.shape[0]},), got {tuple(episode_index.shape)}")
+    ends, run_of = _episode_runs(episode_index)
+    return (points - points[ends[run_of]]).norm(dim=-1).mean(-1)
+
+
+def _episode_runs(episode_index: Tensor) -> tuple[Tensor, Tensor]:
+    """The last frame of each run of equal episode indices (R,) and each frame's run number (T,)."""
+    change = torch.ones_like(episode_index, dtype=torch.bool)
+    change[:-1] = episode_index[1:] != episode_index[:-1]
+    ends = torch.nonzero(change).squeeze(1)
+    run_of = torch.cumsum(torch.cat([torch.zeros(1, dtype=torch.long), change[:-1].long()]), 0)
+    return ends, run_of
+
+
+def travel_scale(points: Tensor, episode_index: Tensor) -> float:
+    """How far the object travels to its end in a typical demonstration (pure): the median over episodes of
+    the largest ``distance_to_end`` within the episode, in the keypoints' units.
+
+    Raises:
+        ValueError: The object never moves in any episode (no scale to take a fraction of).
+    """
+    distance = distance_to_end(points, episode_index)
+    ends, run_of = _episode_runs(episode_index)
+    farthest = torch.zeros(len(ends), dtype=distance.dtype).scatter_reduce(0, run_of, distance, "amax")
+    scale = float(farthest.quantile(0.5))
+    if not scale > 0:
+        raise ValueError("the object does not move in the demonstrations: no travel to take a radius from")
+    return scale
 
 
 def completion_labels(points: Tensor, episode_index: Tensor, radius: float) -> Tensor:
@@ -27,19 +72,9 @@ def completion_labels(points: Tensor, episode_index: Tensor, radius: float) -> T
     Returns:
         A bool tensor (T,).
     """
-    if points.ndim != 3 or points.shape[-1] != 2:
-        raise ValueError(f"points must be (T, N, 2) keypoints, got shape {tuple(points.shape)}")
-    if episode_index.shape != points.shape[:1]:
-        raise ValueError(f"episode_index must be ({points.shape[0]},), got {tuple(episode_index.shape)}")
     if radius <= 0:
         raise ValueError(f"radius must be > 0, got {radius}")
-    # index of each frame's episode's last frame: the last position where that episode index occurs
-    change = torch.ones_like(episode_index, dtype=torch.bool)
-    change[:-1] = episode_index[1:] != episode_index[:-1]
-    ends = torch.nonzero(change).squeeze(1)  # last frame of each run
-    run_of = torch.cumsum(torch.cat([torch.zeros(1, dtype=torch.long), change[:-1].long()]), 0)
-    last = points[ends[run_of]]
-    return (points - last).norm(dim=-1).mean(-1) < radius
+    return distance_to_end(points, episode_index) < radius
 
 
 class CompletionGate(nn.Module):

@@ -148,8 +148,10 @@ class DCDPConfig(PreTrainedConfig):
             probability that the task is nearly done (``completion_gate.py``), so the final alignment runs the
             base's own plan. Fitted after stage 1 on demonstrations by ``dcdp-fit-completion-gate``, which
             sets it; ``lerobot-train`` leaves the gate as it is. Default False.
-        completion_radius: The gate's "nearly done": the object's keypoints (``anchor_feature``) within this
-            mean distance (raw units) of their place on the demonstration's last frame (default 20).
+        completion_radius: The gate's "nearly done" it was fitted with: the object's keypoints
+            (``anchor_feature``) within this mean distance (raw units) of their place on the demonstration's
+            last frame. Recorded by ``dcdp-fit-completion-gate`` (by default 0.15 of the object's typical
+            travel in the demonstrations); ``None`` before a gate is fitted.
         motions_per_sample: ``residual`` on plain demonstrations: independent motions drawn per dataset
             sample (the batch is repeated this many times).
         train_max_delay: ``residual`` on plain demonstrations: chunks that arrive late. Each synthesised
@@ -215,7 +217,7 @@ class DCDPConfig(PreTrainedConfig):
     motion_full_carry_at: float | None = None
     motion_min_carry_speed: float = 0.0
     completion_gate: bool = False
-    completion_radius: float = 20.0
+    completion_radius: float | None = None
     motions_per_sample: int = 4
     train_max_delay: int = 0
 
@@ -310,8 +312,10 @@ class DCDPConfig(PreTrainedConfig):
             raise ValueError(
                 f"motion_full_carry_at must be > 0 (or None for the default), got {self.motion_full_carry_at}"
             )
-        if not self.completion_radius > 0:
-            raise ValueError(f"completion_radius must be > 0, got {self.completion_radius!r}")
+        if self.completion_radius is not None and not self.completion_radius > 0:
+            raise ValueError(
+                f"completion_radius must be > 0 (or None: no gate fitted), got {self.completion_radius!r}"
+            )
         if not self.motion_min_carry_speed >= 0:
             raise ValueError(f"motion_min_carry_speed must be >= 0, got {self.motion_min_carry_speed}")
         if self.motion_max_speed is not None and self.motion_min_carry_speed > self.motion_max_speed:

@@ -1,7 +1,9 @@
 """``dcdp-fit-completion-gate``: a corrector's completion gate fitted on demonstrations, as a new folder.
 
 The gate (``completion_gate.py``) learns where a demonstration is nearly done -- the object's keypoints
-(``anchor_feature``) within ``--radius`` of their place on the episode's last frame -- from the state
+(``anchor_feature``) within a radius of their place on the episode's last frame: ``--radius-fraction``
+(default 0.15) of how far the object typically travels to its end in these demonstrations, or ``--radius`` in
+the keypoints' own units -- from the state
 features the corrector reads, normalised as the base normalises them. Everything else of the corrector is
 copied unchanged; the new folder (``config.json`` with ``completion_gate=true``, the weights with the gate's)
 appears only when complete and loads with ``--policy.path`` like any corrector.
@@ -24,7 +26,7 @@ from torch import Tensor
 
 from lerobot_dcdp.atomic_dataset import staged_dir
 from lerobot_dcdp.base_policy import portable_base_reference
-from lerobot_dcdp.completion_gate import CompletionGate, completion_labels
+from lerobot_dcdp.completion_gate import CompletionGate, completion_labels, travel_scale
 
 
 def gate_data(policy, dataset) -> tuple[Tensor, Tensor, Tensor]:
@@ -45,7 +47,13 @@ def gate_data(policy, dataset) -> tuple[Tensor, Tensor, Tensor]:
     order = torch.as_tensor(np.asarray(table["index"]), dtype=torch.long).argsort(stable=True)
     raw = {k: v[order] for k, v in raw.items()}
     x = torch.cat([policy.normalizer(k, raw[k]) for k in policy.completion_gate.keys], dim=-1)
-    points = raw[config.anchor_feature].reshape(len(episodes), -1, 2)
+    anchor = raw[config.anchor_feature]
+    if anchor.shape[-1] % 2:
+        raise ValueError(
+            f"anchor_feature {config.anchor_feature!r} has {anchor.shape[-1]} values per frame: the gate's "
+            "labels read it as (x, y) keypoints, so it needs an even number"
+        )
+    points = anchor.reshape(len(episodes), -1, 2)
     return x, episodes[order], points
 
 
@@ -104,12 +112,23 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--repo-id", required=True, help="demonstrations (LeRobotDataset repo id)")
     p.add_argument("--root", required=True, help="the demonstrations' local folder")
     p.add_argument("--out", required=True, help="the new corrector folder (must not exist)")
-    p.add_argument("--radius", type=float, default=20.0, help="'nearly done' (raw anchor units)")
+    near = p.add_mutually_exclusive_group()
+    near.add_argument(
+        "--radius-fraction",
+        type=float,
+        default=0.15,
+        help="'nearly done': within this fraction of the object's typical travel to its end (default 0.15)",
+    )
+    near.add_argument("--radius", type=float, help="'nearly done' in the keypoints' own units instead")
     p.add_argument("--steps", type=int, default=3000)
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--val-fraction", type=float, default=0.1, help="episodes held out for the accuracy")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
+    if a.radius is None and not 0 < a.radius_fraction < 1:
+        sys.exit(f"--radius-fraction must be in (0, 1), got {a.radius_fraction}")
+    if a.radius is not None and not a.radius > 0:
+        sys.exit(f"--radius must be > 0, got {a.radius}")
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     from lerobot_dcdp.modeling_dcdp import DCDPPolicy
@@ -120,11 +139,13 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(1)
     source = Path(a.policy)
     policy = DCDPPolicy.from_pretrained(str(source))
-    policy.config.completion_gate, policy.config.completion_radius = True, a.radius
+    policy.config.completion_gate = True
     policy.completion_gate = CompletionGate(policy.state_dims)
     dataset = LeRobotDataset(a.repo_id, root=a.root)
     x, episodes, points = gate_data(policy, dataset)
-    near = completion_labels(points, episodes, a.radius)
+    radius = a.radius if a.radius is not None else a.radius_fraction * travel_scale(points, episodes)
+    policy.config.completion_radius = radius
+    near = completion_labels(points, episodes, radius)
     stats = fit_gate(policy.completion_gate, x, near, episodes, a.steps, a.lr, a.val_fraction, a.seed)
     with staged_dir(out) as tmp:
         tmp.mkdir()
@@ -140,7 +161,8 @@ def main(argv: list[str] | None = None) -> None:
         (tmp / "config.json").write_text(json.dumps(saved, indent=4))
     print(
         f"completion gate fitted on {len(episodes)} frames of {len(episodes.unique())} episodes "
-        f"(near: {100 * stats['near_rate']:.1f} %); held-out episodes: accuracy {stats['val_accuracy']:.3f}, "
+        f"(radius {radius:.4g}, near: {100 * stats['near_rate']:.1f} %); "
+        f"held-out episodes: accuracy {stats['val_accuracy']:.3f}, "
         f"near recalled {stats['val_near_recall']:.3f}, far kept {stats['val_far_accuracy']:.3f}; "
         f"wrote {out}"
     )
