@@ -7,8 +7,12 @@ rollout prints only the ticks that overran their period; this prints the distrib
 
 Usage: .venv/bin/python scripts/tick_times.py [--policy models/pusht-dcdp-state] [--fps 10 30] [--seconds 30]
            [--planning sync async async_pinned] [--planner-cpus 1] [--repeats 2] [--out FILE] [--gc]
+           [--schedstat]
   --gc: also time every garbage-collector pass (``gc.callbacks``) and report the passes and the collector's
   time inside the slowest tick (does the collector make the worst tick?).
+  --schedstat: split every policy tick over 5 ms into the control thread's time on a CPU, its time runnable
+  but waiting for one (``/proc/thread-self/schedstat``: preempted by this machine's other threads) and the
+  rest (blocked, or the CPU taken by the hypervisor: the guest's steal, which the run's ``/proc/stat`` shows).
   async_pinned: async with the worker on ``--planner-cpus`` and the control loop on the other CPUs
   (``--policy.planner_cpus``). ``--repeats``: each row that many times, interleaved (the spread between runs).
   The header records the process's scheduling policy: ``chrt -f 20 python scripts/tick_times.py ...`` runs the
@@ -45,6 +49,19 @@ class GCTimer:
         return 1000 * sum(b - a for a, b, _ in self.passes if start <= a < end)
 
 
+def schedstat() -> tuple[int, int]:
+    """The calling thread's time on a CPU and time runnable but waiting for one, ns (Linux schedstat)."""
+    with open("/proc/thread-self/schedstat") as f:
+        on_cpu, waiting, _ = f.read().split()
+    return int(on_cpu), int(waiting)
+
+
+def steal_ticks() -> int:
+    """The machine's stolen time so far (all CPUs, clock ticks; ``/proc/stat``)."""
+    with open("/proc/stat") as f:
+        return int(f.readline().split()[8])
+
+
 def run(
     policy_path: str,
     planning: str,
@@ -52,6 +69,7 @@ def run(
     seconds: float,
     gc_timer: GCTimer | None = None,
     planner_cpus: list[int] | None = None,
+    sched: bool = False,
 ) -> dict:
     from lerobot.policies.utils import prepare_observation_for_inference
 
@@ -73,15 +91,21 @@ def run(
     period = 1.0 / fps
     next_tick = time.perf_counter()
     whole = []  # (start, end) of every whole tick
+    split = []  # per tick with ``sched``: (on a CPU, waiting for one) ms during the policy call
+    stolen = steal_ticks()
     for _ in range(ticks):
         started = time.perf_counter()
         obs = robot.get_observation()
         frame = {"observation.state": np.array([obs[k] for k in names], dtype=np.float32)}
+        before = schedstat() if sched else (0, 0)
         t0 = time.perf_counter()
         with torch.inference_mode():
             batch = pre(prepare_observation_for_inference(frame, torch.device("cpu")))
             action = post(policy.select_action(batch))[0]
         spans.append((t0, time.perf_counter()))
+        if sched:
+            after = schedstat()
+            split.append(((after[0] - before[0]) / 1e6, (after[1] - before[1]) / 1e6))
         policy_ms.append(1000 * (spans[-1][1] - t0))
         robot.send_action({"x.pos": float(action[0]), "y.pos": float(action[1])})
         whole.append((started, time.perf_counter()))
@@ -116,6 +140,17 @@ def run(
             f"({policy_ms[slowest]:.2f} ms): {gc_timer.inside(*spans[slowest]):.2f} ms; in the slowest whole "
             f"tick ({tick_ms[slowest_whole]:.2f} ms): {gc_timer.inside(*whole[slowest_whole]):.2f} ms"
         )
+    if sched:
+        slow = [i for i in range(1, ticks) if policy_ms[i] > 5.0]
+        parts = [
+            f"{policy_ms[i]:.1f} = {split[i][0]:.1f} on a CPU + {split[i][1]:.1f} waiting for one + "
+            f"{policy_ms[i] - split[i][0] - split[i][1]:.1f} other"
+            for i in slow
+        ]
+        stats["sched"] = (
+            f"machine steal over the run {(steal_ticks() - stolen) * 1e3 / os.sysconf('SC_CLK_TCK'):.0f} ms; "
+            f"policy ticks over 5 ms (ms): {'; '.join(parts) if parts else 'none'}"
+        )
     robot.disconnect()
     return stats
 
@@ -129,6 +164,7 @@ def main() -> None:
         "--planning", nargs="+", default=["sync", "async"], choices=["sync", "async", "async_pinned"]
     )
     p.add_argument("--gc", action="store_true", help="time the garbage collector's passes too")
+    p.add_argument("--schedstat", action="store_true", help="split slow ticks by the scheduler's accounts")
     p.add_argument(
         "--planner-cpus",
         type=int,
@@ -156,12 +192,13 @@ def main() -> None:
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     print("\n".join(lines), flush=True)
+    notes = []  # per-run lines printed below the table
     for fps in a.fps:
         for repeat in range(a.repeats):
             for planning in a.planning:
                 cpus = a.planner_cpus if planning == "async_pinned" else None
                 mode = "async" if planning == "async_pinned" else planning
-                s = run(a.policy, mode, fps, a.seconds, GCTimer() if a.gc else None, cpus)
+                s = run(a.policy, mode, fps, a.seconds, GCTimer() if a.gc else None, cpus, a.schedstat)
                 label = f"async, planner_cpus={cpus}" if cpus else planning
                 cells = [
                     label,
@@ -181,10 +218,13 @@ def main() -> None:
                 print(lines[-1], flush=True)
                 if "gc" in s:
                     print(f"  garbage collector ({planning}): {s['gc']}", flush=True)
+                if "sched" in s:
+                    notes.append(f"- scheduler ({label}, {fps} Hz, run {repeat + 1}): {s['sched']}")
+                    print(notes[-1], flush=True)
     if a.out:
         tmp = f"{a.out}.tmp"
         with open(tmp, "w") as f:
-            f.write("\n".join(lines) + "\n")
+            f.write("\n".join(lines + ([""] + notes if notes else [])) + "\n")
         os.replace(tmp, a.out)
 
 

@@ -1,0 +1,129 @@
+"""Screens: can the final alignment under drift come from fresher or forward-looking chunks? (diagnosis aids)
+
+Each screen runs one benchmark condition (same envs, seeds and seeding as ``near_misses.py``) and prints score
+and success per setting:
+
+- ``horizon``: ``open_loop`` with the base replanning every ``H`` steps (``n_action_steps``; the benchmark's
+  8 is the reference). Fresher chunks in the final alignment, at the cost of the chunk's temporal consistency.
+- ``extrapolate``: ``open_loop`` where the base plans from an observation whose object features
+  (``observation.environment_state``) are moved ``lead`` steps ahead along their motion over the last ``k``
+  steps (the base aims where the object will be).
+- ``lead``: ``object_anchored`` carrying the plan to where the object will be ``lead`` steps on (its motion
+  over the last step) instead of where it is now (the agent's controller lags its command).
+- ``gate_share``: ``dcdp`` with a completion-gated corrector that keeps this share of its correction where the
+  gate says "nearly done" (0: the shipped gate, the plan itself there; 1: no gate).
+
+Usage: .venv/bin/python scripts/alignment_screens.py --screen horizon --settings 8 4 2 1
+           [--policy models/pusht-dcdp-state-demos-late-gated] [--condition constant_0.5] [--episodes 100]
+       --screen extrapolate --settings 0 4 8 [--k 4];  --screen lead --settings 0 2 4
+       --screen gate_share --settings 0 0.25 0.5
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+
+
+def horizon(args: argparse.Namespace, steps: float):
+    """``open_loop`` replanning every ``steps`` steps."""
+    from near_misses import condition_rollout
+
+    policy, _, act, envs, seeds = condition_rollout(args.policy, args.condition, args.episodes, "open_loop")
+    policy.config.n_action_steps = int(steps)
+    policy.reset()
+    return act, envs, seeds
+
+
+def extrapolate(args: argparse.Namespace, lead: float):
+    """``open_loop`` planning from object features moved ``lead`` steps along their recent motion."""
+    from lerobot.envs.utils import preprocess_observation
+    from near_misses import condition_rollout
+
+    from lerobot_dcdp.benchmark.rollout import _stack_obs
+    from lerobot_dcdp.benchmark.run import load_model
+
+    policy, post, _, envs, seeds = condition_rollout(args.policy, args.condition, args.episodes, "open_loop")
+    _, pre, _, _ = load_model(args.policy)
+    history = []
+
+    def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
+        stacked = _stack_obs(obs)
+        x = stacked["environment_state"].astype(np.float64)
+        history.append(x)
+        if lead and len(history) > args.k:
+            velocity = (history[-1] - history[-1 - args.k]) / args.k
+            stacked = {**stacked, "environment_state": (x + lead * velocity).astype(np.float32)}
+        return post(policy.select_action(pre(preprocess_observation(stacked)))).cpu().numpy()
+
+    return act, envs, seeds
+
+
+def lead(args: argparse.Namespace, steps: float):
+    """``object_anchored`` carrying the plan to the object's pose ``steps`` steps on."""
+    from near_misses import condition_rollout
+
+    policy, _, act, envs, seeds = condition_rollout(
+        args.policy, args.condition, args.episodes, "object_anchored"
+    )
+    anchored = policy.modes["object_anchored"]
+    previous = {}
+
+    def carried(state, step, batch):
+        now = anchored.anchor.points(batch)
+        last, previous["points"] = previous.get("points"), now
+        if last is not None and steps:
+            now = now + steps * (now - last)
+        return anchored.anchor.carry(state.chunk[:, step], state.anchor_plan, now)
+
+    anchored.act = carried
+    return act, envs, seeds
+
+
+def gate_share(args: argparse.Namespace, share: float):
+    """``dcdp`` keeping ``share`` of the correction where the completion gate fires."""
+    from near_misses import condition_rollout
+
+    import lerobot_dcdp.modeling_dcdp as modeling
+    from lerobot_dcdp.completion_gate import gated_action
+
+    policy, _, act, envs, seeds = condition_rollout(args.policy, args.condition, args.episodes, "dcdp")
+    if not policy.config.completion_gate:
+        raise SystemExit(f"{args.policy} has no completion gate")
+    modeling.gated_action = lambda plan, action, near: gated_action(plan, action, (1.0 - share) * near)
+    return act, envs, seeds
+
+
+SCREENS = {"horizon": horizon, "extrapolate": extrapolate, "lead": lead, "gate_share": gate_share}
+
+
+def main() -> None:
+    from lerobot_dcdp.lockstep import run_lockstep
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--screen", choices=sorted(SCREENS), required=True)
+    p.add_argument("--settings", type=float, nargs="+", required=True, help="H, or the lead in steps")
+    p.add_argument("--policy", default="models/pusht-dcdp-state-demos-late-gated")
+    p.add_argument("--condition", default="constant_0.5")
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--k", type=int, default=4, help="extrapolate: steps the object's velocity is taken over")
+    a = p.parse_args()
+    torch.set_num_threads(1)
+    for setting in a.settings:
+        started = time.time()
+        act, envs, seeds = SCREENS[a.screen](a, setting)
+        out = run_lockstep(envs, seeds, act, 300, None)
+        for env in envs:
+            env.close()
+        print(
+            f"{a.policy} {a.condition} {a.screen}={setting:g}: score {np.mean(out.max_rewards):.3f} "
+            f"success {100 * np.mean(out.successes):.0f} % ({time.time() - started:.0f} s)",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()
