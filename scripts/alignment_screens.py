@@ -12,11 +12,14 @@ and success per setting:
   over the last step) instead of where it is now (the agent's controller lags its command).
 - ``gate_share``: ``dcdp`` with a completion-gated corrector that keeps this share of its correction where the
   gate says "nearly done" (0: the shipped gate, the plan itself there; 1: no gate).
+- ``gate_drift`` (privileged): ``dcdp`` with a completion-gated corrector where, as far as the gate fires, the
+  plan is moved by this share of the drift the env applied since plan time (read from the env's
+  ``perturbation_offset``): does a finish that follows the world's motion alone, not the push, finish more?
 
 Usage: .venv/bin/python scripts/alignment_screens.py --screen horizon --settings 8 4 2 1
            [--policy models/pusht-dcdp-state-demos-late-gated] [--condition constant_0.5] [--episodes 100]
        --screen extrapolate --settings 0 4 8 [--k 4];  --screen lead --settings 0 2 4
-       --screen gate_share --settings 0 0.25 0.5
+       --screen gate_share --settings 0 0.25 0.5;  --screen gate_drift --settings 0 1
 """
 
 from __future__ import annotations
@@ -97,7 +100,45 @@ def gate_share(args: argparse.Namespace, share: float):
     return act, envs, seeds
 
 
-SCREENS = {"horizon": horizon, "extrapolate": extrapolate, "lead": lead, "gate_share": gate_share}
+def gate_drift(args: argparse.Namespace, share: float):
+    """``dcdp`` (gated) plus ``share`` x the env's drift since plan time, as far as the gate fires."""
+    from near_misses import condition_rollout
+
+    import lerobot_dcdp.modeling_dcdp as modeling
+    from lerobot_dcdp.completion_gate import gated_action
+
+    policy, _, corrected, envs, seeds = condition_rollout(args.policy, args.condition, args.episodes, "dcdp")
+    if not policy.config.completion_gate:
+        raise SystemExit(f"{args.policy} has no completion gate")
+    near = {}
+
+    def recording(plan, action, p):
+        near["p"] = p.detach().cpu().numpy()
+        return gated_action(plan, action, p)
+
+    modeling.gated_action = recording
+    drift = np.zeros((len(seeds), 2))  # the env's summed drift up to the newest observation
+    at_plan = np.zeros((len(seeds), 2))
+
+    def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
+        action = corrected(obs, active)
+        if policy.last_step == 0:  # this observation planned the chunk (sync planning, no delay)
+            at_plan[:] = drift
+        return action + share * near["p"][:, None] * (drift - at_plan)
+
+    def on_step(i: int, obs: dict, reward: float, info: dict) -> None:
+        drift[i] += info["perturbation_offset"]
+
+    return act, envs, seeds, on_step
+
+
+SCREENS = {
+    "horizon": horizon,
+    "extrapolate": extrapolate,
+    "lead": lead,
+    "gate_share": gate_share,
+    "gate_drift": gate_drift,
+}
 
 
 def main() -> None:
@@ -114,8 +155,8 @@ def main() -> None:
     torch.set_num_threads(1)
     for setting in a.settings:
         started = time.time()
-        act, envs, seeds = SCREENS[a.screen](a, setting)
-        out = run_lockstep(envs, seeds, act, 300, None)
+        act, envs, seeds, *on_step = SCREENS[a.screen](a, setting)
+        out = run_lockstep(envs, seeds, act, 300, *on_step)
         for env in envs:
             env.close()
         print(
