@@ -12,6 +12,8 @@ and success per setting:
   over the last step) instead of where it is now (the agent's controller lags its command).
 - ``gate_share``: ``dcdp`` with a completion-gated corrector that keeps this share of its correction where the
   gate says "nearly done" (0: the shipped gate, the plan itself there; 1: no gate).
+- ``ensemble``: ``temporal_ensemble`` (the base plans its whole chunk every step; plans averaged with weight
+  ``te_weight`` = the setting on the newest): a finish from fresh plans that keeps the chunks' consistency?
 - ``gate_drift`` (privileged): ``dcdp`` with a completion-gated corrector where, as far as the gate fires, the
   plan is moved by this share of the drift the env applied since plan time (read from the env's
   ``perturbation_offset``): does a finish that follows the world's motion alone, not the push, finish more?
@@ -20,6 +22,7 @@ Usage: .venv/bin/python scripts/alignment_screens.py --screen horizon --settings
            [--policy models/pusht-dcdp-state-demos-late-gated] [--condition constant_0.5] [--episodes 100]
        --screen extrapolate --settings 0 4 8 [--k 4];  --screen lead --settings 0 2 4
        --screen gate_share --settings 0 0.25 0.5;  --screen gate_drift --settings 0 1
+       --screen ensemble --settings 0.5 0.1
 """
 
 from __future__ import annotations
@@ -100,6 +103,17 @@ def gate_share(args: argparse.Namespace, share: float):
     return act, envs, seeds
 
 
+def ensemble(args: argparse.Namespace, weight: float):
+    """``temporal_ensemble`` with ``te_weight`` = ``weight``."""
+    from near_misses import condition_rollout
+
+    policy, _, act, envs, seeds = condition_rollout(
+        args.policy, args.condition, args.episodes, "temporal_ensemble"
+    )
+    policy.config.te_weight = weight
+    return act, envs, seeds
+
+
 def gate_drift(args: argparse.Namespace, share: float):
     """``dcdp`` (gated) plus ``share`` x the env's drift since plan time, as far as the gate fires."""
     from near_misses import condition_rollout
@@ -137,6 +151,7 @@ SCREENS = {
     "extrapolate": extrapolate,
     "lead": lead,
     "gate_share": gate_share,
+    "ensemble": ensemble,
     "gate_drift": gate_drift,
 }
 
