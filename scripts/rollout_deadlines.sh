@@ -15,6 +15,7 @@
 #        TICKS_PER_STEP=1 (--policy.ticks_per_step: FPS/10 holds each planned action for that many ticks)
 #        PLANNER_CPUS= (async only: --policy.planner_cpus, e.g. "[1]": the base's worker on CPU 1, the loop
 #        on the others)
+#        PLANNER_PRIORITY=normal (async only: --policy.planner_priority; idle: the worker under SCHED_IDLE)
 #        PERTURBATION=constant MAGNITUDE=2.0 OUT=runs/rollout_deadlines
 #        LEROBOT_ROLLOUT=.venv/bin/lerobot-rollout (the CLI to run)
 # Writes $OUT/<mode>.log and $OUT/summary.md (also printed).
@@ -24,10 +25,12 @@ FPS=${FPS:-10}; DURATION=${DURATION:-30}; OUT=${OUT:-runs/rollout_deadlines}
 MODES=${MODES:-open_loop dcdp object_anchored temporal_ensemble closed_loop}
 LEROBOT_ROLLOUT=${LEROBOT_ROLLOUT:-.venv/bin/lerobot-rollout}
 PLANNING=${PLANNING:-sync}; TICKS_PER_STEP=${TICKS_PER_STEP:-1}; PLANNER_CPUS=${PLANNER_CPUS:-}
+PLANNER_PRIORITY=${PLANNER_PRIORITY:-normal}
 pin=(); [ -n "$PLANNER_CPUS" ] && pin=(--policy.planner_cpus="$PLANNER_CPUS")
+[ "$PLANNER_PRIORITY" != normal ] && pin+=(--policy.planner_priority="$PLANNER_PRIORITY")
 mkdir -p "$OUT"
 {
-  echo "policy \`$policy\`, planning=${PLANNING}${PLANNER_CPUS:+, planner_cpus=$PLANNER_CPUS}, ticks_per_step=${TICKS_PER_STEP}, ${FPS} Hz, ${DURATION} s per mode, ${PERTURBATION:-constant} drift ${MAGNITUDE:-2.0} px/step,"
+  echo "policy \`$policy\`, planning=${PLANNING}${PLANNER_CPUS:+, planner_cpus=$PLANNER_CPUS}, planner_priority=${PLANNER_PRIORITY}, ticks_per_step=${TICKS_PER_STEP}, ${FPS} Hz, ${DURATION} s per mode, ${PERTURBATION:-constant} drift ${MAGNITUDE:-2.0} px/step,"
   echo "$(nproc) CPUs, OMP_NUM_THREADS=1, load average before: $(cut -d' ' -f1-3 /proc/loadavg), $(date -u +%FT%TZ)"
   echo
   echo "| mode | ticks | missed deadlines (LeRobot warnings) | missed % | slowest tick ms | held sim steps | superseded actions | max coverage | episodes finished | mean score |"

@@ -6,15 +6,17 @@ The loop is the one LeRobot's sync inference engine runs per tick (robot observa
 rollout prints only the ticks that overran their period; this prints the distribution of every tick.
 
 Usage: .venv/bin/python scripts/tick_times.py [--policy models/pusht-dcdp-state] [--fps 10 30] [--seconds 30]
-           [--planning sync async async_pinned] [--planner-cpus 1] [--repeats 2] [--out FILE] [--gc]
-           [--schedstat]
+           [--planning sync async async_pinned async_idle] [--planner-cpus 1] [--repeats 2] [--out FILE]
+           [--gc] [--schedstat]
   --gc: also time every garbage-collector pass (``gc.callbacks``) and report the passes and the collector's
   time inside the slowest tick (does the collector make the worst tick?).
   --schedstat: split every policy tick over 5 ms into the control thread's time on a CPU, its time runnable
   but waiting for one (``/proc/thread-self/schedstat``: preempted by this machine's other threads) and the
   rest (blocked, or the CPU taken by the hypervisor: the guest's steal, which the run's ``/proc/stat`` shows).
   async_pinned: async with the worker on ``--planner-cpus`` and the control loop on the other CPUs
-  (``--policy.planner_cpus``). ``--repeats``: each row that many times, interleaved (the spread between runs).
+  (``--policy.planner_cpus``); async_idle: async with the worker under ``SCHED_IDLE``
+  (``--policy.planner_priority=idle``), unpinned. ``--repeats``: each row that many times, interleaved (the
+  spread between runs).
   The header records the process's scheduling policy: ``chrt -f 20 python scripts/tick_times.py ...`` runs the
   loop (and the worker) at real-time FIFO priority.
 """
@@ -70,6 +72,7 @@ def run(
     gc_timer: GCTimer | None = None,
     planner_cpus: list[int] | None = None,
     sched: bool = False,
+    priority: str = "normal",
 ) -> dict:
     from lerobot.policies.utils import prepare_observation_for_inference
 
@@ -80,6 +83,7 @@ def run(
     policy = DCDPPolicy.from_pretrained(policy_path).eval()
     policy.config.planning = planning
     policy.config.planner_cpus = planner_cpus if planning == "async" else None
+    policy.config.planner_priority = priority if planning == "async" else "normal"
     pre, post = make_dcdp_pre_post_processors(policy.config)
     robot = PushTSim(PushTSimConfig(perturbation="constant", magnitude=2.0, seed=100_000))
     robot.connect()
@@ -161,7 +165,10 @@ def main() -> None:
     p.add_argument("--fps", type=int, nargs="+", default=[30])
     p.add_argument("--seconds", type=float, default=30.0)
     p.add_argument(
-        "--planning", nargs="+", default=["sync", "async"], choices=["sync", "async", "async_pinned"]
+        "--planning",
+        nargs="+",
+        default=["sync", "async"],
+        choices=["sync", "async", "async_pinned", "async_idle"],
     )
     p.add_argument("--gc", action="store_true", help="time the garbage collector's passes too")
     p.add_argument("--schedstat", action="store_true", help="split slow ticks by the scheduler's accounts")
@@ -197,9 +204,12 @@ def main() -> None:
         for repeat in range(a.repeats):
             for planning in a.planning:
                 cpus = a.planner_cpus if planning == "async_pinned" else None
-                mode = "async" if planning == "async_pinned" else planning
-                s = run(a.policy, mode, fps, a.seconds, GCTimer() if a.gc else None, cpus, a.schedstat)
+                mode = "async" if planning.startswith("async") else planning
+                priority = "idle" if planning == "async_idle" else "normal"
+                timer = GCTimer() if a.gc else None
+                s = run(a.policy, mode, fps, a.seconds, timer, cpus, a.schedstat, priority)
                 label = f"async, planner_cpus={cpus}" if cpus else planning
+                label = "async, planner_priority=idle" if priority == "idle" else label
                 cells = [
                     label,
                     s["fps"],

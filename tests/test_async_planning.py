@@ -329,6 +329,38 @@ def test_planner_cpus_pins_the_worker_and_moves_the_control_loop_off_them(diffus
     assert os.sched_getaffinity(0) == allowed
 
 
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="SCHED_IDLE is Linux's")
+def test_planner_priority_idle_runs_the_base_under_sched_idle(diffusion_base, demo_root) -> None:
+    """planner_priority='idle': every base call on the worker runs under SCHED_IDLE; the control thread keeps
+    its own scheduling."""
+    policy = _policy(
+        diffusion_base,
+        demo_root,
+        n_action_steps=4,
+        execution="open_loop",
+        planning="async",
+        planning_clock="steps",
+        inference_delay=1,
+        planner_priority="idle",
+    )
+    control = os.sched_getscheduler(0)
+    seen = []  # (thread name, its scheduling policy) at every base call
+    inner = policy.base.predict_action_chunk
+
+    def recording(batch):
+        seen.append((threading.current_thread().name, os.sched_getscheduler(0)))
+        return inner(batch)
+
+    policy.base.predict_action_chunk = recording
+    pre, _ = make_dcdp_pre_post_processors(policy.config)
+    for o in env_observations(1, 10):
+        policy.select_action(pre(dict(o)))
+    worker_calls = [sched for name, sched in seen if name.startswith("dcdp-planner")]
+    assert len(worker_calls) >= 2 and set(worker_calls) == {os.SCHED_IDLE}
+    assert os.sched_getscheduler(0) == control != os.SCHED_IDLE
+    policy.close()
+
+
 def test_planner_cpus_must_leave_the_control_loop_a_cpu() -> None:
     from lerobot_dcdp.planner import pin_apart
 

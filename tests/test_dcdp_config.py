@@ -30,6 +30,8 @@ def test_missing_base_is_refused() -> None:
         ("planner_cpus", [1, 1]),
         ("planner_cpus", [-1]),
         ("planner_cpus", [1]),  # needs planning='async'
+        ("planner_priority", "low"),
+        ("planner_priority", "idle"),  # needs planning='async'
     ],
 )
 def test_bad_values_name_the_field(field: str, value) -> None:

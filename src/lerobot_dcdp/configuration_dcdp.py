@@ -18,6 +18,7 @@ PLANNING_CLOCKS = ("wall", "steps")
 BASE_LOCATIONS = ("local", "remote")
 #: Execution modes that run one chunk for several ticks (the ones asynchronous planning applies to).
 CHUNK_MODES = ("dcdp", "open_loop", "object_anchored")
+PLANNER_PRIORITIES = ("normal", "idle")
 MOTION_LABELS = ("observed", "added", "graded")
 
 
@@ -80,6 +81,9 @@ class DCDPConfig(PreTrainedConfig):
             wherever the scheduler puts it). While the worker lives, the thread that started it (the control
             loop) runs on the other CPUs the process may use, so the base never preempts a tick on a shared
             core.
+        planner_priority: Scheduling of the ``async`` worker thread: ``normal`` (default) or ``idle`` (Linux
+            ``SCHED_IDLE``: the base runs only while no other thread wants its CPU, so a control tick that
+            wakes up takes the CPU from it at once, with or without ``planner_cpus``).
         ticks_per_step: Control ticks per planned step: the control loop's rate over the rate the base was
             trained at (default 1; a 10 Hz base on a 30 Hz loop: 3). The policy computes an action (base,
             corrector, their observation histories) on every ``ticks_per_step``-th ``select_action`` call and
@@ -199,6 +203,7 @@ class DCDPConfig(PreTrainedConfig):
     planning: str = "sync"
     planning_clock: str = "wall"
     planner_cpus: list[int] | None = None
+    planner_priority: str = "normal"
     ticks_per_step: int = 1
     base_location: str = "local"
     te_weight: float = 0.5
@@ -283,6 +288,11 @@ class DCDPConfig(PreTrainedConfig):
                 raise ValueError(f"planner_cpus must be distinct CPU numbers >= 0, got {cpus!r}")
             if self.planning != "async":
                 raise ValueError("planner_cpus pins the async worker: use it with --policy.planning=async")
+        _check_choice("planner_priority", self.planner_priority, PLANNER_PRIORITIES)
+        if self.planner_priority != "normal" and self.planning != "async":
+            raise ValueError(
+                "planner_priority schedules the async worker: use it with --policy.planning=async"
+            )
         tps = self.ticks_per_step
         if isinstance(tps, bool) or not isinstance(tps, int) or tps < 1:
             raise ValueError(f"ticks_per_step must be an integer >= 1, got {tps!r}")

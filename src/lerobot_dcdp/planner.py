@@ -43,10 +43,13 @@ class OneJobWorker:
 
     thread_name = "dcdp-planner"
 
-    def __init__(self, cpus: set[int] | None = None) -> None:
+    def __init__(self, cpus: set[int] | None = None, idle: bool = False) -> None:
+        if idle and not hasattr(os, "SCHED_IDLE"):
+            raise ValueError("planner_priority='idle' needs Linux's SCHED_IDLE, which this system lacks")
         self._pool: ThreadPoolExecutor | None = None
         self._job: tuple[Future, int, Any] | None = None
         self._cpus = None if cpus is None else set(cpus)
+        self._idle = idle
         self._control_cpus: tuple[int, set[int]] | None = None  # (thread id, its CPUs before pinning)
 
     @property
@@ -69,8 +72,8 @@ class OneJobWorker:
             self._pool = ThreadPoolExecutor(
                 max_workers=1,
                 thread_name_prefix=self.thread_name,
-                initializer=None if self._cpus is None else os.sched_setaffinity,
-                initargs=() if self._cpus is None else (0, self._cpus),
+                initializer=schedule_worker,
+                initargs=(self._cpus, self._idle),
             )
         self._job = (self._pool.submit(fn, *args), int(t_obs), context)
 
@@ -118,10 +121,11 @@ class BackgroundPlanner(OneJobWorker):
         cpus: CPUs the worker thread runs on (``DCDPConfig.planner_cpus``; None: wherever the scheduler
             puts it). The thread that starts the worker (the control loop) is moved to its other CPUs
             until :meth:`close`.
+        idle: Run the worker under ``SCHED_IDLE`` (``DCDPConfig.planner_priority='idle'``).
     """
 
-    def __init__(self, source: ChunkSource, cpus: set[int] | None = None) -> None:
-        super().__init__(cpus)
+    def __init__(self, source: ChunkSource, cpus: set[int] | None = None, idle: bool = False) -> None:
+        super().__init__(cpus, idle)
         self._worker = ChunkSource(copy.copy(source.base))  # shares weights and config; own history
 
     def submit(
@@ -153,6 +157,15 @@ class BackgroundPlanner(OneJobWorker):
             return None
         (chunk, seconds, finished), t_obs, context = done
         return PlannedChunk(chunk, t_obs, context, seconds, finished)
+
+
+def schedule_worker(cpus: set[int] | None, idle: bool) -> None:
+    """Run in the worker thread as it starts: keep it on ``cpus`` (None: any) and, with ``idle``, give it
+    ``SCHED_IDLE``, so any other thread that wants its CPU runs first (Linux; both for this thread only)."""
+    if cpus is not None:
+        os.sched_setaffinity(0, cpus)
+    if idle:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
 
 
 def pin_apart(cpus: set[int]) -> tuple[int, set[int]]:

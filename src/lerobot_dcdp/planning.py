@@ -155,7 +155,8 @@ class AsyncPlanning:
         cfg, horizon = self.config, self.config.n_action_steps
         if self.planner is None:
             cpus = cfg.planner_cpus
-            self.planner = BackgroundPlanner(self.source, None if cpus is None else set(cpus))
+            idle = cfg.planner_priority == "idle"
+            self.planner = BackgroundPlanner(self.source, None if cpus is None else set(cpus), idle)
         planner, t = self.planner, state.t
         if not planner.pending and state.step >= horizon - self.lead(state):
             finish = self._finisher(mode, horizon - state.step, context)
