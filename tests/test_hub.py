@@ -96,3 +96,14 @@ def test_push_uploads_the_corrector_only_and_it_loads_back(diffusion_base, demo_
     for k, v in policy.state_dict().items():
         assert torch.equal(v, loaded.state_dict()[k])
     assert loaded.config.base_weights_sha256 == policy.config.base_weights_sha256
+
+
+def test_model_card_says_whether_a_completion_gate_is_fitted() -> None:
+    from lerobot_dcdp.configuration_dcdp import DCDPConfig
+    from lerobot_dcdp.model_card import make_model_card
+
+    plain = DCDPConfig(base_policy_path="x/y", device="cpu")
+    assert "completion gate" not in str(make_model_card(plain, "0" * 64, "local/test"))
+    gated = DCDPConfig(base_policy_path="x/y", device="cpu", completion_gate=True, completion_radius=21.24)
+    card = str(make_model_card(gated, "0" * 64, "local/test"))
+    assert "completion gate: fitted on demonstrations (radius 21.24 in the object keypoints' units)" in card

@@ -83,7 +83,9 @@ class DCDPConfig(PreTrainedConfig):
             core.
         planner_priority: Scheduling of the ``async`` worker thread: ``normal`` (default) or ``idle`` (Linux
             ``SCHED_IDLE``: the base runs only while no other thread wants its CPU, so a control tick that
-            wakes up takes the CPU from it at once, with or without ``planner_cpus``).
+            wakes up takes the CPU from it at once, with or without ``planner_cpus``). Both apply to the
+            worker that runs the base in this process; a remote base's client thread (``dcdp-robot-client``)
+            only waits on the server.
         ticks_per_step: Control ticks per planned step: the control loop's rate over the rate the base was
             trained at (default 1; a 10 Hz base on a 30 Hz loop: 3). The policy computes an action (base,
             corrector, their observation histories) on every ``ticks_per_step``-th ``select_action`` call and

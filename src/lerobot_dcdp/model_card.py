@@ -52,6 +52,13 @@ def make_model_card(
     repo = config.repo_id or "<this repo>"
     rows = benchmark_rows(corrector_sha256)
     numbers = "\n".join(rows) if rows else "Not benchmarked yet: run `dcdp-benchmark --model NAME=<dir>`."
+    gate = (
+        f"- completion gate: fitted on demonstrations (radius {config.completion_radius:.4g} in the object "
+        "keypoints' units): the base's own plan runs uncorrected where the object is nearly where "
+        "demonstrations end\n"
+        if config.completion_gate and config.completion_radius is not None
+        else ""
+    )
     text = f"""
 # DCDP corrector for a frozen `{config.base_policy_type}` policy
 
@@ -65,7 +72,7 @@ from its own reference.
 - base policy: `{config.base_policy_path}` (type `{config.base_policy_type}`)
 - base weights sha256: `{config.base_weights_sha256}` (verified at load; a different base is refused)
 - trained on: `{dataset_repo_id}`
-
+{gate}
 ## Measured (`dcdp-benchmark`, PushT, seeds 100000..)
 
 {numbers}
