@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import threading
+from functools import partial
 
 import pytest
 import torch
@@ -291,12 +292,9 @@ def test_ticks_per_step_holds_each_planned_action(diffusion_base, demo_root, pla
         type(policy.config)(base_policy_path=str(diffusion_base), ticks_per_step=0)
 
 
-@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="pinning apart needs two CPUs")
-def test_planner_cpus_pins_the_worker_and_moves_the_control_loop_off_them(diffusion_base, demo_root) -> None:
-    """planner_cpus: the base runs on those CPUs only, the control thread on the others while the worker
-    lives, and gets its CPUs back on close."""
-    allowed = os.sched_getaffinity(0)
-    worker_cpu = max(allowed)
+def _worker_episode(diffusion_base, demo_root, probe, **kw) -> tuple[list, list]:
+    """Ten ticks of an async open-loop episode (worker options ``kw``): ``(thread name, probe())`` at every
+    base call, and ``probe()`` on the control thread after every tick. The policy is closed afterwards."""
     policy = _policy(
         diffusion_base,
         demo_root,
@@ -305,13 +303,13 @@ def test_planner_cpus_pins_the_worker_and_moves_the_control_loop_off_them(diffus
         planning="async",
         planning_clock="steps",
         inference_delay=1,
-        planner_cpus=[worker_cpu],
+        **kw,
     )
-    seen = []  # (thread name, its CPUs) at every base call
+    seen = []
     inner = policy.base.predict_action_chunk
 
     def recording(batch):
-        seen.append((threading.current_thread().name, os.sched_getaffinity(0)))
+        seen.append((threading.current_thread().name, probe()))
         return inner(batch)
 
     policy.base.predict_action_chunk = recording
@@ -319,46 +317,37 @@ def test_planner_cpus_pins_the_worker_and_moves_the_control_loop_off_them(diffus
     control = []
     for o in env_observations(1, 10):
         policy.select_action(pre(dict(o)))
-        control.append(os.sched_getaffinity(0))
+        control.append(probe())
+    policy.close()
+    return seen, control
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="pinning apart needs two CPUs")
+def test_planner_cpus_pins_the_worker_and_moves_the_control_loop_off_them(diffusion_base, demo_root) -> None:
+    """planner_cpus: the base runs on those CPUs only, the control thread on the others while the worker
+    lives, and gets its CPUs back on close."""
+    allowed = os.sched_getaffinity(0)
+    worker_cpu = max(allowed)
+    affinity = partial(os.sched_getaffinity, 0)
+    seen, control = _worker_episode(diffusion_base, demo_root, affinity, planner_cpus=[worker_cpu])
     assert seen[0] == ("MainThread", allowed)  # the episode's first chunk, before the worker exists
     worker_calls = [cpus for name, cpus in seen[1:] if name.startswith("dcdp-planner")]
     assert len(worker_calls) == len(seen) - 1 >= 2
     assert all(cpus == {worker_cpu} for cpus in worker_calls)
     assert control[-1] == allowed - {worker_cpu}
-    policy.close()
-    assert os.sched_getaffinity(0) == allowed
+    assert os.sched_getaffinity(0) == allowed  # given back on close
 
 
 @pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="SCHED_IDLE is Linux's")
 def test_planner_priority_idle_runs_the_base_under_sched_idle(diffusion_base, demo_root) -> None:
     """planner_priority='idle': every base call on the worker runs under SCHED_IDLE; the control thread keeps
     its own scheduling."""
-    policy = _policy(
-        diffusion_base,
-        demo_root,
-        n_action_steps=4,
-        execution="open_loop",
-        planning="async",
-        planning_clock="steps",
-        inference_delay=1,
-        planner_priority="idle",
-    )
-    control = os.sched_getscheduler(0)
-    seen = []  # (thread name, its scheduling policy) at every base call
-    inner = policy.base.predict_action_chunk
-
-    def recording(batch):
-        seen.append((threading.current_thread().name, os.sched_getscheduler(0)))
-        return inner(batch)
-
-    policy.base.predict_action_chunk = recording
-    pre, _ = make_dcdp_pre_post_processors(policy.config)
-    for o in env_observations(1, 10):
-        policy.select_action(pre(dict(o)))
+    before = os.sched_getscheduler(0)
+    scheduler = partial(os.sched_getscheduler, 0)
+    seen, control = _worker_episode(diffusion_base, demo_root, scheduler, planner_priority="idle")
     worker_calls = [sched for name, sched in seen if name.startswith("dcdp-planner")]
     assert len(worker_calls) >= 2 and set(worker_calls) == {os.SCHED_IDLE}
-    assert os.sched_getscheduler(0) == control != os.SCHED_IDLE
-    policy.close()
+    assert set(control) == {before} and before != os.SCHED_IDLE
 
 
 def test_planner_cpus_must_leave_the_control_loop_a_cpu() -> None:
