@@ -32,11 +32,41 @@ def test_missing_base_is_refused() -> None:
         ("planner_cpus", [1]),  # needs planning='async'
         ("planner_priority", "low"),
         ("planner_priority", "idle"),  # needs planning='async'
+        ("ticks_per_step", 0),
+        ("base_location", "remote"),  # needs planning='async'
+        ("compiled_kernel", "yes"),
+        ("change_scale", 0.0),
+        ("anchor_input", True),  # needs an anchor_feature
+        ("motion_max_speed", -1.0),
+        ("motions_per_sample", 0),
+        ("train_max_delay", -1),
+        ("latent_dim", 0),
+        ("n_heads", 3),  # feature_dim 128 is not divisible by 3
     ],
 )
 def test_bad_values_name_the_field(field: str, value) -> None:
     with pytest.raises(ValueError, match=field):
         DCDPConfig(base_policy_path="x/y", device="cpu", **{field: value})
+
+
+def test_async_planning_refuses_a_mode_that_replans_every_step() -> None:
+    with pytest.raises(ValueError, match="planning='async' applies to the chunk modes"):
+        DCDPConfig(base_policy_path="x/y", device="cpu", planning="async", execution="closed_loop")
+
+
+def test_each_check_reads_options_of_the_config() -> None:
+    """The option-group checks take their options by name: every name is a DCDPConfig field."""
+    import dataclasses
+    import inspect
+
+    from lerobot_dcdp import config_checks
+
+    names = {f.name for f in dataclasses.fields(DCDPConfig)}
+    checks = [config_checks.check_execution, config_checks.check_planning, config_checks.check_correction]
+    checks.append(config_checks.check_synthesis)
+    for check in checks:
+        assert set(inspect.signature(check).parameters) <= names, check.__name__
+    assert set(config_checks.NETWORK_SIZES) <= names
 
 
 def test_delta_indices_cover_history_and_executed_chunk() -> None:

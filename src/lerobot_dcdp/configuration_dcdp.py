@@ -2,33 +2,26 @@
 
 from __future__ import annotations
 
-import difflib
+import inspect
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from lerobot.configs import NormalizationMode, PreTrainedConfig
 from lerobot.configs.types import FeatureType
 from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
 
-EXECUTION_MODES = ("dcdp", "open_loop", "closed_loop", "temporal_ensemble", "object_anchored")
-CORRECTIONS = ("reconstruct", "residual")
-BACKBONES = ("auto", "mlp", "resnet18")
-KERNEL_CHOICES = ("auto", "on", "off")
-PLANNING_MODES = ("sync", "async")
-PLANNING_CLOCKS = ("wall", "steps")
-BASE_LOCATIONS = ("local", "remote")
-#: Execution modes that run one chunk for several ticks (the ones asynchronous planning applies to).
-CHUNK_MODES = ("dcdp", "open_loop", "object_anchored")
-PLANNER_PRIORITIES = ("normal", "idle")
-MOTION_LABELS = ("observed", "added", "graded")
+from lerobot_dcdp.config_checks import (  # the choice tuples stay importable from here
+    CORRECTIONS,
+    EXECUTION_MODES,
+    NETWORK_SIZES,
+    check_correction,
+    check_execution,
+    check_network,
+    check_planning,
+    check_synthesis,
+)
 
-
-def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
-    """Refuse a value outside ``choices``, suggesting the closest valid one."""
-    if value in choices:
-        return
-    close = difflib.get_close_matches(str(value).replace("-", "_"), choices, n=1, cutoff=0.5)
-    hint = f" -- did you mean {close[0]!r}? (--policy.{name}={close[0]})" if close else ""
-    raise ValueError(f"{name} must be one of {choices}, got {value!r}{hint}")
+__all__ = ["CORRECTIONS", "EXECUTION_MODES", "DCDPConfig"]
 
 
 @PreTrainedConfig.register_subclass("dcdp")
@@ -266,108 +259,21 @@ class DCDPConfig(PreTrainedConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if not self.base_policy_path:
-            raise ValueError(
-                "base_policy_path is required: the pretrained_model directory or Hub id of the frozen "
-                "chunking policy to correct (--policy.base_policy_path=...)"
-            )
-        if self.n_history < 2:
-            raise ValueError(f"n_history must be >= 2 (differentials need two frames), got {self.n_history}")
-        if self.n_action_steps < 1:
-            raise ValueError(f"n_action_steps must be >= 1, got {self.n_action_steps}")
-        if self.inference_delay < 0:
-            raise ValueError(f"inference_delay must be >= 0 control steps, got {self.inference_delay}")
-        _check_choice("execution", self.execution, EXECUTION_MODES)
-        _check_choice("planning", self.planning, PLANNING_MODES)
-        _check_choice("planning_clock", self.planning_clock, PLANNING_CLOCKS)
-        if self.planner_cpus is not None:
-            cpus = self.planner_cpus
-            if (
-                not cpus
-                or len(set(cpus)) != len(cpus)
-                or any(isinstance(c, bool) or not isinstance(c, int) or c < 0 for c in cpus)
-            ):
-                raise ValueError(f"planner_cpus must be distinct CPU numbers >= 0, got {cpus!r}")
-            if self.planning != "async":
-                raise ValueError("planner_cpus pins the async worker: use it with --policy.planning=async")
-        _check_choice("planner_priority", self.planner_priority, PLANNER_PRIORITIES)
-        if self.planner_priority != "normal" and self.planning != "async":
-            raise ValueError(
-                "planner_priority schedules the async worker: use it with --policy.planning=async"
-            )
-        tps = self.ticks_per_step
-        if isinstance(tps, bool) or not isinstance(tps, int) or tps < 1:
-            raise ValueError(f"ticks_per_step must be an integer >= 1, got {tps!r}")
-        _check_choice("base_location", self.base_location, BASE_LOCATIONS)
-        if self.base_location == "remote" and self.planning != "async":
-            raise ValueError(
-                "base_location='remote' plans every chunk on the remote base: use --policy.planning=async"
-            )
-        if self.planning == "async" and self.execution not in CHUNK_MODES:
-            raise ValueError(
-                f"planning='async' applies to the chunk modes {CHUNK_MODES}; execution={self.execution!r} "
-                "replans every step (use --policy.planning=sync)"
-            )
-        _check_choice("correction", self.correction, CORRECTIONS)
-        if self.execution == "object_anchored" and not self.anchor_feature:
-            raise ValueError(
-                "execution='object_anchored' needs anchor_feature: the observation key holding the object's "
-                "xy keypoints (PushT: --policy.anchor_feature=observation.environment_state)"
-            )
-        if self.anchor_input and not (self.anchor_feature and self.correction == "residual"):
-            raise ValueError("anchor_input needs correction='residual' and an anchor_feature")
-        if self.motion_max_speed is not None and not self.motion_max_speed >= 0:
-            raise ValueError(
-                f"motion_max_speed must be >= 0 (or None for the default), got {self.motion_max_speed}"
-            )
-        if self.motion_full_carry_at is not None and not self.motion_full_carry_at > 0:
-            raise ValueError(
-                f"motion_full_carry_at must be > 0 (or None for the default), got {self.motion_full_carry_at}"
-            )
-        if self.completion_radius is not None and not self.completion_radius > 0:
-            raise ValueError(
-                f"completion_radius must be > 0 (or None: no gate fitted), got {self.completion_radius!r}"
-            )
-        if not self.motion_min_carry_speed >= 0:
-            raise ValueError(f"motion_min_carry_speed must be >= 0, got {self.motion_min_carry_speed}")
-        if self.motion_max_speed is not None and self.motion_min_carry_speed > self.motion_max_speed:
-            raise ValueError(
-                f"motion_min_carry_speed ({self.motion_min_carry_speed}) is above motion_max_speed "
-                f"({self.motion_max_speed}): no synthesised motion would be carried"
-            )
-        if not self.motion_max_turn_deg >= 0:
-            raise ValueError(f"motion_max_turn_deg must be >= 0, got {self.motion_max_turn_deg}")
-        if not 0.0 <= self.motion_static_fraction <= 1.0:
-            raise ValueError(f"motion_static_fraction must be in [0, 1], got {self.motion_static_fraction}")
-        if self.motions_per_sample < 1:
-            raise ValueError(f"motions_per_sample must be >= 1, got {self.motions_per_sample}")
-        if self.train_max_delay < 0:
-            raise ValueError(f"train_max_delay must be >= 0 control steps, got {self.train_max_delay}")
-        if not self.change_scale > 0:
-            raise ValueError(f"change_scale must be > 0, got {self.change_scale}")
-        if not 0.0 < self.te_weight <= 1.0:
-            raise ValueError(f"te_weight must be in (0, 1], got {self.te_weight}")
-        _check_choice("backbone", self.backbone, BACKBONES)
-        _check_choice("compiled_kernel", self.compiled_kernel, KERNEL_CHOICES)
-        _check_choice("motion_label", self.motion_label, MOTION_LABELS)
-        for name in (
-            "feature_dim",
-            "state_hidden_dim",
-            "latent_dim",
-            "encoder_hidden_dim",
-            "decoder_hidden_dim",
-            "step_embed_dim",
-            "n_heads",
-        ):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.feature_dim % self.n_heads:
-            raise ValueError(
-                f"feature_dim ({self.feature_dim}) must be divisible by n_heads ({self.n_heads})"
-            )
-        for name in ("kl_weight", "diff_weight"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        # one pure check per option group (config_checks.py); each takes the options it reads by name
+        for check in (check_execution, check_planning, check_correction, check_synthesis):
+            check(**self._options_of(check))
+        check_network(
+            backbone=self.backbone,
+            sizes={name: getattr(self, name) for name in NETWORK_SIZES},
+            feature_dim=self.feature_dim,
+            n_heads=self.n_heads,
+            kl_weight=self.kl_weight,
+            diff_weight=self.diff_weight,
+        )
+
+    def _options_of(self, check: Callable[..., None]) -> dict:
+        """This config's values of the options ``check`` reads (its parameters are named as the options)."""
+        return {name: getattr(self, name) for name in inspect.signature(check).parameters}
 
     # ------------------------------------------------------------------ what a training sample holds
     @property
