@@ -21,16 +21,6 @@ BASE_LOCATIONS = ("local", "remote")
 CHUNK_MODES = ("dcdp", "open_loop", "object_anchored")
 PLANNER_PRIORITIES = ("normal", "idle")
 MOTION_LABELS = ("observed", "added", "graded")
-#: Network sizes that must be positive integers.
-NETWORK_SIZES = (
-    "feature_dim",
-    "state_hidden_dim",
-    "latent_dim",
-    "encoder_hidden_dim",
-    "decoder_hidden_dim",
-    "step_embed_dim",
-    "n_heads",
-)
 
 
 def check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
@@ -178,15 +168,28 @@ def check_synthesis(
 def check_network(
     *,
     backbone: str,
-    sizes: dict[str, int],
     feature_dim: int,
+    state_hidden_dim: int,
+    latent_dim: int,
+    encoder_hidden_dim: int,
+    decoder_hidden_dim: int,
+    step_embed_dim: int,
     n_heads: int,
     kl_weight: float,
     diff_weight: float,
 ) -> None:
-    """The corrector's networks: backbone, widths (``sizes``: name -> value) and loss weights."""
+    """The corrector's networks: backbone, widths and loss weights."""
     check_choice("backbone", backbone, BACKBONES)
-    for name, value in sizes.items():
+    widths = {
+        "feature_dim": feature_dim,
+        "state_hidden_dim": state_hidden_dim,
+        "latent_dim": latent_dim,
+        "encoder_hidden_dim": encoder_hidden_dim,
+        "decoder_hidden_dim": decoder_hidden_dim,
+        "step_embed_dim": step_embed_dim,
+        "n_heads": n_heads,
+    }
+    for name, value in widths.items():
         if value < 1:
             raise ValueError(f"{name} must be >= 1, got {value}")
     if feature_dim % n_heads:
@@ -194,3 +197,7 @@ def check_network(
     for name, value in (("kl_weight", kl_weight), ("diff_weight", diff_weight)):
         if value < 0:
             raise ValueError(f"{name} must be >= 0, got {value}")
+
+
+#: Every option group's check, in the order ``DCDPConfig`` runs them.
+CHECKS = (check_execution, check_planning, check_correction, check_synthesis, check_network)

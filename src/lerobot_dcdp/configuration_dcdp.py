@@ -11,14 +11,9 @@ from lerobot.configs.types import FeatureType
 from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
 
 from lerobot_dcdp.config_checks import (  # the choice tuples stay importable from here
+    CHECKS,
     CORRECTIONS,
     EXECUTION_MODES,
-    NETWORK_SIZES,
-    check_correction,
-    check_execution,
-    check_network,
-    check_planning,
-    check_synthesis,
 )
 
 __all__ = ["CORRECTIONS", "EXECUTION_MODES", "DCDPConfig"]
@@ -260,16 +255,8 @@ class DCDPConfig(PreTrainedConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         # one pure check per option group (config_checks.py); each takes the options it reads by name
-        for check in (check_execution, check_planning, check_correction, check_synthesis):
+        for check in CHECKS:
             check(**self._options_of(check))
-        check_network(
-            backbone=self.backbone,
-            sizes={name: getattr(self, name) for name in NETWORK_SIZES},
-            feature_dim=self.feature_dim,
-            n_heads=self.n_heads,
-            kl_weight=self.kl_weight,
-            diff_weight=self.diff_weight,
-        )
 
     def _options_of(self, check: Callable[..., None]) -> dict:
         """This config's values of the options ``check`` reads (its parameters are named as the options)."""
