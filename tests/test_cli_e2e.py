@@ -90,6 +90,20 @@ def test_discovery_through_lerobot() -> None:
     assert proc.stdout.split()[-3:] == ["DCDPPolicy", "PushTPerturbedEnvConfig", "SplitStateProcessorStep"]
 
 
+def test_train_help_describes_every_dcdp_option() -> None:
+    """``lerobot-train --policy.type=dcdp --help`` describes each option (the option groups' ``Args:``) and
+    lists its flat flag."""
+    import dataclasses
+
+    from lerobot_dcdp import config_options
+
+    proc = run([str(BIN / "lerobot-train"), "--policy.type=dcdp", "--help"], cwd=Path.cwd())
+    for group in config_options.OPTION_GROUPS:
+        for f in dataclasses.fields(group):
+            assert f"        {f.name}: " in proc.stdout, f.name
+            assert f"--policy.{f.name} " in proc.stdout, f.name
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["diffusion", "act"])
 def test_train_then_eval(kind, diffusion_base, act_base, demo_root, tmp_path) -> None:
