@@ -17,12 +17,15 @@ and success per setting:
 - ``gate_drift`` (privileged): ``dcdp`` with a completion-gated corrector where, as far as the gate fires, the
   plan is moved by this share of the drift the env applied since plan time (read from the env's
   ``perturbation_offset``): does a finish that follows the world's motion alone, not the push, finish more?
+- ``gate_anchor``: ``object_anchored`` (the training-free rule) with a corrector's completion gate applied at
+  this strength (0: the plain rule; 1: the plan itself where the gate says "nearly done"): is the learned
+  corrector, gated, better than its analytic teacher gated the same way?
 
 Usage: .venv/bin/python scripts/alignment_screens.py --screen horizon --settings 8 4 2 1
            [--policy models/pusht-dcdp-state-demos-late-gated] [--condition constant_0.5] [--episodes 100]
        --screen extrapolate --settings 0 4 8 [--k 4];  --screen lead --settings 0 2 4
        --screen gate_share --settings 0 0.25 0.5;  --screen gate_drift --settings 0 1
-       --screen ensemble --settings 0.5 0.1
+       --screen ensemble --settings 0.5 0.1;  --screen gate_anchor --settings 0 1
 """
 
 from __future__ import annotations
@@ -146,6 +149,29 @@ def gate_drift(args: argparse.Namespace, share: float):
     return act, envs, seeds, on_step
 
 
+def gate_anchor(args: argparse.Namespace, strength: float):
+    """``object_anchored`` with the corrector's completion gate at ``strength``."""
+    from near_misses import condition_rollout
+
+    from lerobot_dcdp.completion_gate import gated_action
+
+    policy, _, act, envs, seeds = condition_rollout(
+        args.policy, args.condition, args.episodes, "object_anchored"
+    )
+    if not policy.config.completion_gate:
+        raise SystemExit(f"{args.policy} has no completion gate")
+    anchored = policy.modes["object_anchored"]
+    rule = anchored.act
+
+    def gated(state, step, batch):
+        return gated_action(
+            state.chunk[:, step], rule(state, step, batch), strength * policy.completion_gate(batch)
+        )
+
+    anchored.act = gated
+    return act, envs, seeds
+
+
 SCREENS = {
     "horizon": horizon,
     "extrapolate": extrapolate,
@@ -153,6 +179,7 @@ SCREENS = {
     "gate_share": gate_share,
     "ensemble": ensemble,
     "gate_drift": gate_drift,
+    "gate_anchor": gate_anchor,
 }
 
 
