@@ -141,9 +141,8 @@ def train(args, rest: list[str]) -> None:
     from lerobot_dcdp import finetune_rl
 
     bank = np.load(args.bank)["states"]
-    seed = next((int(a.split("=", 1)[1]) for a in rest if a.startswith("--seed=")), 0)
-    _patch_starts(bank, seed)
-    finetune_rl.main(rest)
+    _patch_starts(bank, args.seed)
+    finetune_rl.main([*rest, f"--seed={args.seed}"])
 
 
 def _eval_drift(condition: str, seed: int, data):
@@ -220,6 +219,7 @@ def main() -> None:
     s.add_argument("--out", required=True)
     t = sub.add_parser("train")
     t.add_argument("--bank", required=True)
+    t.add_argument("--seed", type=int, default=0, help="first training seed (also indexes the bank)")
     e = sub.add_parser("eval")
     e.add_argument("--bank", required=True)
     e.add_argument("--n", type=int, default=200)
