@@ -49,12 +49,20 @@ def test_protocol_presets_and_explicit_flags() -> None:
     assert main_args.out == "results/benchmark.json" and "expert" not in main_args.methods
     mild = parse_args(["--protocol", "mild"])
     assert mild.episodes == 100 and mild.expert_episodes == 100 and mild.conditions == MILD_CONDITIONS
-    assert mild.methods == ["open_loop", "object_anchored", "dcdp", "expert"]
+    assert mild.methods == ["open_loop", "object_anchored", "gated_anchored", "dcdp", "expert"]
     assert (mild.out, mild.report) == ("results/benchmark_mild.json", "docs/RESULTS_MILD.md")
     assert mild.latency_steps == 0 and mild.videos == 0
     # the mild protocol's first correctors carry the base's rows, the gated ones only their DCDP row
-    assert model_methods(mild, "diffusion_demos") == ["open_loop", "object_anchored", "dcdp"]
+    assert model_methods(mild, "diffusion_demos") == [
+        "open_loop",
+        "object_anchored",
+        "gated_anchored",
+        "dcdp",
+    ]
     assert model_methods(mild, "act_demos_late_gated") == ["dcdp"]
+    # the bare bases with a completion gate: their gated anchoring only
+    assert model_methods(mild, "act_anchored_gated") == ["gated_anchored"]
+    assert model_methods(main_args, "diffusion_anchored_gated") == ["gated_anchored"]
     assert model_methods(main_args, "diffusion") == [m for m in main_args.methods if m != "expert"]
     assert model_methods(main_args, "diffusion_demos_late_gated") == ["dcdp"]
     explicit = parse_args(["--model", "act_demos_late_gated=x", "--methods", "open_loop", "dcdp"])
@@ -237,3 +245,61 @@ def test_report_shows_shipped_model_paths_relative_to_the_checkout() -> None:
     assert shown_path(str(REPO / "models" / "pusht-dcdp-state-demos")) == "models/pusht-dcdp-state-demos"
     assert shown_path("/elsewhere/model") == "/elsewhere/model"
     assert shown_path("runs/x/pretrained_model") == "runs/x/pretrained_model"
+
+
+def test_the_gated_anchoring_row_is_its_folders_own_and_judged_like_dcdp(tmp_path) -> None:
+    r = _results()
+    t, f = True, False
+    gate = dict(r["models"]["m"], corrector_sha256="a" * 12, completion_gate_sha256="9" * 12)
+    r["models"]["a"] = gate  # a bare base's gate on the same base: its gated-anchoring row only
+    r["cells"]["a|gated_anchored|constant_0.75"] = _cell(
+        "a", "gated_anchored", "constant_0.75", [t, t, t, f], [1, 1, 1, 0.8]
+    )
+    # open loop comes from the other folder on the same base and seeds; a gated row is never borrowed
+    assert baseline_cell(r, "a", "open_loop", "constant_0.75") is r["cells"]["m|open_loop|constant_0.75"]
+    assert baseline_cell(r, "m", "gated_anchored", "constant_0.75") is None
+    assert goals_issue22(r, "a") == ""  # no DCDP row of its own
+    goals = goals_issue22(r, "a", "gated_anchored")
+    # success [1, 1, 1, 0] - [1, 0, 0, 0] -> +50 points, paired s.e. 29; attainable goal met by +35
+    assert "| condition | open loop success | gated anchoring success |" in goals
+    assert "| constant_0.75 | 25 % | 75 % | +50 ± 29 |" in goals and "met (+35) |" in goals
+    assert "Object-anchored chunk + completion gate" in table1(r, "a")
+    r["cells"]["a|gated_anchored|static"] = _cell("a", "gated_anchored", "static", [t, t, t, t], [1, 1, 1, 1])
+    write_report(r, tmp_path / "R.md", tmp_path / "b.json")
+    text = (tmp_path / "R.md").read_text()
+    # its goal gaps judge the gated anchoring: static 4/4 and 1.0 against open loop's 2/4 and 0.95
+    assert "- static: gated anchoring - open loop = +0.050 score (goal >= -0.01)" in text
+    assert "- static: gated anchoring - open loop = +50 success points (goal >= -4)" in text
+    assert "### Issue 22 goals (gated anchoring)" in text
+    assert "completion gate `models/c` (sha256 `999999999999`; no corrector runs)" in text
+
+
+def test_gated_anchoring_cells_need_a_gate_and_are_reused_only_for_the_same_gate() -> None:
+    from types import SimpleNamespace
+
+    from lerobot_dcdp.benchmark.run import _fresh, runs, set_mode
+
+    ident = {"corrector_sha256": "c", "completion_gate_sha256": "g", "base_weights_sha256": "b"}
+    cell = {
+        "method": "gated_anchored",
+        "identity": dict(ident, corrector_sha256="other"),  # the unused corrector does not matter
+        "seeds": [7],
+        "max_steps": 300,
+        "episodes": 1,
+    }
+    assert _fresh(cell, ident, [7], 300)
+    assert not _fresh(cell, dict(ident, completion_gate_sha256="h"), [7], 300)
+    assert _fresh(dict(cell, method="object_anchored"), dict(ident, completion_gate_sha256="h"), [7], 300)
+    config = SimpleNamespace(anchor_feature="observation.environment_state", n_action_steps=8)
+    bare = SimpleNamespace(config=config, completion_gate=None, source=SimpleNamespace(max_length=16))
+    assert runs("object_anchored", bare) and not runs("gated_anchored", bare)
+    with pytest.raises(ValueError, match="completion gate"):
+        set_mode(bare, "gated_anchored")
+    gated = SimpleNamespace(config=config, completion_gate=object(), source=bare.source, reset=lambda: None)
+    assert runs("gated_anchored", gated)
+    set_mode(gated, "gated_anchored")
+    assert (config.execution, config.completion_gate) == ("object_anchored", True)
+    set_mode(gated, "object_anchored")  # the benchmark's anchoring row is the plain rule
+    assert (config.execution, config.completion_gate) == ("object_anchored", False)
+    set_mode(gated, "dcdp")
+    assert (config.execution, config.completion_gate) == ("dcdp", True)

@@ -131,3 +131,83 @@ def test_fit_cli_writes_a_corrector_whose_gate_knows_the_episode_ends(diffusion_
     assert recorded == pytest.approx(0.15 * travel_scale(points, episodes))
     with pytest.raises(SystemExit, match="radius-fraction"):
         main([*argv[:-1], str(tmp_path / "bad"), "--radius-fraction", "1.5"])
+
+
+def _moved(policy, observation: dict, dx: float) -> dict:
+    """``observation`` (normalised) with the block's keypoints moved ``dx`` raw units along x."""
+    key = "observation.environment_state"
+    raw = policy.normalizer(key, observation[key], inverse=True)
+    shift = torch.tensor([dx, 0.0]).repeat(raw.shape[-1] // 2)
+    return {**observation, key: policy.normalizer(key, raw + shift)}
+
+
+def test_the_gate_leaves_the_anchoring_as_planned_where_near(diffusion_base, demo_root) -> None:
+    near, far = (_gated_policy(diffusion_base, demo_root, bias) for bias in (30.0, -30.0))
+    pre, _ = make_dcdp_pre_post_processors(near.config)
+    first = pre(dict(env_observations(2, 1)[0]))
+    for policy in (near, far):
+        policy.config.execution = "object_anchored"
+    outputs = {}
+    for name, policy, gate_on in (("near", near, True), ("far", far, True), ("near_off", near, False)):
+        policy.config.completion_gate = gate_on
+        policy.reset()
+        torch.manual_seed(0)
+        policy.select_action(dict(first))
+        action = policy.select_action(_moved(policy, first, 10.0))
+        plan = policy.planned_chunk[:, 1]
+        outputs[name] = (policy.normalizer("action", action, inverse=True), plan)
+    # the block moved +10 px since plan time: far from completion the rule carries the plan +10 px along x
+    action, plan = outputs["far"]
+    want = near.normalizer("action", plan, inverse=True) + torch.tensor([10.0, 0.0])
+    torch.testing.assert_close(action, want, atol=1e-3, rtol=0)
+    # near completion the plan runs as planned (same base, same seed: the same plan)
+    action, plan = outputs["near"]
+    torch.testing.assert_close(plan, outputs["far"][1])
+    torch.testing.assert_close(action, near.normalizer("action", plan, inverse=True), atol=1e-3, rtol=0)
+    # completion_gate=false on a folder with a gate: the plain rule, gate or not
+    torch.testing.assert_close(outputs["near_off"][0], want, atol=1e-3, rtol=0)
+
+
+def test_fit_cli_around_a_bare_base_writes_a_gated_anchoring_folder(
+    diffusion_base, demo_root, tmp_path
+) -> None:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_dcdp.fit_completion_gate import gate_data, main
+    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+
+    key = "observation.environment_state"
+    data = ["--repo-id", "local/test", "--root", str(demo_root)]
+    out = tmp_path / "anchored"
+    argv = ["--base", str(diffusion_base), "--anchor-feature", key, *data, "--out", str(out)]
+    main([*argv, "--steps", "1500", "--radius", "30", "--val-fraction", "0"])
+    loaded = DCDPPolicy.from_pretrained(str(out)).eval()
+    cfg = loaded.config
+    assert cfg.execution == "object_anchored" and cfg.anchor_feature == key
+    assert cfg.completion_gate and cfg.completion_radius == 30
+    assert json.loads((out / "config.json").read_text())["base_policy_path"] != str(diffusion_base)
+    assert (out / "policy_preprocessor.json").is_file() and (out / "policy_postprocessor.json").is_file()
+    # the gate learned the demonstrations' end
+    x, episodes, points = gate_data(loaded, LeRobotDataset("local/test", root=demo_root))
+    near = completion_labels(points, episodes, 30.0)
+    with torch.no_grad():
+        guess = loaded.completion_gate.logit(x) > 0
+    assert guess[near].float().mean() > 0.8 and (~guess[~near]).float().mean() > 0.8
+    # its corrector never trained: run as dcdp it is exactly the base's plan
+    pre, _ = make_dcdp_pre_post_processors(cfg)
+    cfg.execution = "dcdp"
+    loaded.reset()
+    torch.manual_seed(0)
+    for o in env_observations(2, 6):
+        action = loaded.select_action(pre(dict(o)))
+        torch.testing.assert_close(action, loaded.planned_chunk[:, loaded.last_step])
+    # one clear error for each bad call, and nothing written
+    for bad, message in (
+        (["--base", str(diffusion_base), *data], "--anchor-feature"),
+        (["--base", str(diffusion_base), "--anchor-feature", "observation.nope", *data], "observation.nope"),
+        (["--policy", str(out), "--anchor-feature", key, *data], "goes with --base"),
+    ):
+        with pytest.raises(SystemExit, match=message):
+            main([*bad, "--out", str(tmp_path / "bad"), "--steps", "1"])
+        assert not (tmp_path / "bad").exists()

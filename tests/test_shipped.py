@@ -35,7 +35,8 @@ def test_shipped_corrector_runs_every_mode_from_another_directory(corrector, tmp
     from lerobot_dcdp.modeling_dcdp import DCDPPolicy
     from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
 
-    stored = json.loads((corrector / "config.json").read_text())["base_policy_path"]
+    saved = json.loads((corrector / "config.json").read_text())
+    stored = saved["base_policy_path"]
     assert not Path(stored).is_absolute(), "a shipped corrector names its base relative to itself"
     monkeypatch.chdir(tmp_path)  # not the repository root
     policy = DCDPPolicy.from_pretrained(corrector).eval()
@@ -53,8 +54,14 @@ def test_shipped_corrector_runs_every_mode_from_another_directory(corrector, tmp
         assert actions.shape == (10, 2, 2) and torch.isfinite(actions).all(), mode
         assert (actions > -50).all() and (actions < 600).all(), f"{mode}: actions leave the PushT arena"
         plans[mode] = actions
-    # a shipped corrector changes the open-loop actions (it is not an untrained identity) ...
-    assert not torch.equal(plans["dcdp"], plans["open_loop"])
+    if saved["execution"] == "object_anchored":
+        # a bare base's gated anchoring (dcdp-fit-completion-gate --base): a gate, a corrector that never
+        # trained (exactly the plan) ...
+        assert policy.completion_gate is not None
+        torch.testing.assert_close(plans["dcdp"], plans["open_loop"])
+    else:
+        # ... else a corrector that changes the open-loop actions (it is not an untrained identity) ...
+        assert not torch.equal(plans["dcdp"], plans["open_loop"])
     # ... and every mode starts from the same first chunk: step 0 of open loop = step 0 of closed loop
     torch.testing.assert_close(plans["closed_loop"][0], plans["open_loop"][0])
 

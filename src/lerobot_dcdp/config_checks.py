@@ -19,6 +19,8 @@ PLANNING_CLOCKS = ("wall", "steps")
 BASE_LOCATIONS = ("local", "remote")
 #: Execution modes that run one chunk for several ticks (the ones asynchronous planning applies to).
 CHUNK_MODES = ("dcdp", "open_loop", "object_anchored")
+#: the modes that move the base's plan, where a fitted completion gate leaves it as planned near completion
+GATED_MODES = ("dcdp", "object_anchored")
 PLANNER_PRIORITIES = ("normal", "idle")
 MOTION_LABELS = ("observed", "added", "graded")
 

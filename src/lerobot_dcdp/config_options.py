@@ -133,10 +133,12 @@ class CorrectionOptions:
             falls back to the PyTorch path with one warning when numba cannot import, compile or cache it
             (cache location: ``$DCDP_KERNEL_CACHE``, default ``~/.cache/lerobot_dcdp/numba``); ``on`` raises
             instead of falling back; ``off`` never uses it.
-        completion_gate: ``dcdp`` only: scale each step's correction by ``1 - p`` where ``p`` is a learned
-            probability that the task is nearly done (``completion_gate.py``), so the final alignment runs the
-            base's own plan. Fitted after stage 1 on demonstrations by ``dcdp-fit-completion-gate``, which
-            sets it; ``lerobot-train`` leaves the gate as it is. Default False.
+        completion_gate: In ``dcdp`` and ``object_anchored`` (the modes that move the plan): scale each
+            step's change of the plan by ``1 - p`` where ``p`` is a learned probability that the task is
+            nearly done (``completion_gate.py``), so the final alignment runs the base's own plan. Fitted on
+            demonstrations by ``dcdp-fit-completion-gate``, which sets it: after stage 1 (``--policy``), or
+            around a bare base for the training-free anchoring (``--base``); ``lerobot-train`` leaves the gate
+            as it is. ``false`` on a folder with a fitted gate runs without it. Default False.
         completion_radius: The gate's "nearly done" it was fitted with: the object's keypoints
             (``anchor_feature``) within this mean distance (raw units) of their place on the demonstration's
             last frame. Recorded by ``dcdp-fit-completion-gate`` (by default 0.15 of the object's typical

@@ -1,15 +1,23 @@
-"""``dcdp-fit-completion-gate``: a corrector's completion gate fitted on demonstrations, as a new folder.
+"""``dcdp-fit-completion-gate``: a completion gate fitted on demonstrations, as a new policy folder.
 
 The gate (``completion_gate.py``) learns where a demonstration is nearly done -- the object's keypoints
 (``anchor_feature``) within a radius of their place on the episode's last frame: ``--radius-fraction``
 (default 0.15) of how far the object typically travels to its end in these demonstrations, or ``--radius`` in
-the keypoints' own units -- from the state
-features the corrector reads, normalised as the base normalises them. Everything else of the corrector is
-copied unchanged; the new folder (``config.json`` with ``completion_gate=true``, the weights with the gate's)
-appears only when complete and loads with ``--policy.path`` like any corrector.
+the keypoints' own units -- from the state features the policy reads, normalised as the base normalises them.
+
+- ``--policy <corrector>``: the gate of a trained corrector. Everything else of the corrector is copied
+  unchanged (``config.json`` gets ``completion_gate=true``, the weights the gate's).
+- ``--base <base> --anchor-feature <key>``: no corrector training. The folder wraps the bare base for the
+  training-free ``object_anchored`` execution (its default there) with the gate: the plan carried along with
+  the object's motion, left as planned where the task is nearly done. Its corrector is a fresh, minimal one
+  (some kilobytes): exactly the base's plan (``--policy.execution=dcdp`` runs open loop).
+
+The new folder appears only when complete and loads with ``--policy.path`` like any corrector.
 
     dcdp-fit-completion-gate --policy models/pusht-dcdp-state-teleop --repo-id local/pusht_expert \\
         --root data/pusht_expert --out models/pusht-dcdp-state-teleop-gated
+    dcdp-fit-completion-gate --base models/pusht-act-state --anchor-feature observation.environment_state \\
+        --repo-id local/pusht_expert --root data/pusht_expert --out runs/pusht-act-anchored-gated
 """
 
 from __future__ import annotations
@@ -106,12 +114,60 @@ def fit_gate(
     }
 
 
+#: the corrector a ``--base`` folder carries only to load as a DCDP policy: the smallest the config allows
+UNUSED_CORRECTOR = dict(
+    feature_dim=8,
+    n_heads=1,
+    state_hidden_dim=8,
+    latent_dim=2,
+    encoder_hidden_dim=8,
+    decoder_hidden_dim=8,
+    step_embed_dim=4,
+)
+
+
+def gated_anchoring_policy(base: str, anchor_feature: str, dataset_meta):
+    """A DCDP policy around the bare ``base`` that runs ``object_anchored`` on ``anchor_feature`` with a
+    (not yet fitted) completion gate; its fresh corrector (``UNUSED_CORRECTOR``'s sizes) reads the dataset's
+    state features and is exactly the base's plan (the residual head starts at zero)."""
+    from lerobot.configs.types import FeatureType
+    from lerobot.policies.factory import make_policy
+    from lerobot.utils.feature_utils import dataset_to_policy_features
+
+    from lerobot_dcdp.configuration_dcdp import DCDPConfig
+
+    features = dataset_to_policy_features(dataset_meta.features)
+    if anchor_feature not in features:
+        raise ValueError(
+            f"--anchor-feature {anchor_feature!r} is not a feature of the dataset ({sorted(features)})"
+        )
+    state = [k for k, f in features.items() if f.type in (FeatureType.STATE, FeatureType.ENV)]
+    config = DCDPConfig(
+        base_policy_path=str(Path(base).resolve()) if Path(base).is_dir() else base,
+        anchor_feature=anchor_feature,
+        execution="object_anchored",
+        completion_gate=True,
+        observation_features=state,
+        **UNUSED_CORRECTOR,
+        device="cpu",
+        push_to_hub=False,
+    )
+    return make_policy(config, ds_meta=dataset_meta)
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--policy", required=True, help="the corrector's pretrained_model folder")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--policy", help="a trained corrector's pretrained_model folder: gate its corrections")
+    what.add_argument(
+        "--base", help="a bare base (pretrained_model folder or Hub id): gate the training-free anchoring"
+    )
+    p.add_argument(
+        "--anchor-feature", help="with --base: the observation key of the object's xy keypoints (needed)"
+    )
     p.add_argument("--repo-id", required=True, help="demonstrations (LeRobotDataset repo id)")
     p.add_argument("--root", required=True, help="the demonstrations' local folder")
-    p.add_argument("--out", required=True, help="the new corrector folder (must not exist)")
+    p.add_argument("--out", required=True, help="the new policy folder (must not exist)")
     near = p.add_mutually_exclusive_group()
     near.add_argument(
         "--radius-fraction",
@@ -129,19 +185,31 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(f"--radius-fraction must be in (0, 1), got {a.radius_fraction}")
     if a.radius is not None and not a.radius > 0:
         sys.exit(f"--radius must be > 0, got {a.radius}")
+    if a.base is not None and not a.anchor_feature:
+        sys.exit("--base needs --anchor-feature: the observation key of the object's xy keypoints")
+    if a.policy is not None and a.anchor_feature:
+        sys.exit("--anchor-feature goes with --base; a corrector (--policy) keeps its own anchor_feature")
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
 
     out = Path(a.out)
     if out.exists():
         sys.exit(f"--out {out} exists: give a new folder")
     torch.set_num_threads(1)
-    source = Path(a.policy)
-    policy = DCDPPolicy.from_pretrained(str(source))
-    policy.config.completion_gate = True
-    policy.completion_gate = CompletionGate(policy.state_dims)
     dataset = LeRobotDataset(a.repo_id, root=a.root)
+    if a.policy is not None:
+        source = Path(a.policy)
+        policy = DCDPPolicy.from_pretrained(str(source))
+        policy.config.completion_gate = True
+        policy.completion_gate = CompletionGate(policy.state_dims)
+    else:
+        source = None
+        try:
+            policy = gated_anchoring_policy(a.base, a.anchor_feature, dataset.meta)
+        except ValueError as e:
+            sys.exit(str(e))
     x, episodes, points = gate_data(policy, dataset)
     radius = a.radius if a.radius is not None else a.radius_fraction * travel_scale(points, episodes)
     policy.config.completion_radius = radius
@@ -149,9 +217,13 @@ def main(argv: list[str] | None = None) -> None:
     stats = fit_gate(policy.completion_gate, x, near, episodes, a.steps, a.lr, a.val_fraction, a.seed)
     with staged_dir(out) as tmp:
         tmp.mkdir()
-        for f in source.iterdir():
-            if f.is_file() and f.name not in ("config.json", "model.safetensors"):
-                shutil.copy2(f, tmp / f.name)
+        if source is not None:  # the corrector's processors and the rest of its folder
+            for f in source.iterdir():
+                if f.is_file() and f.name not in ("config.json", "model.safetensors"):
+                    shutil.copy2(f, tmp / f.name)
+        else:  # the base's processors, as lerobot-train saves them beside a corrector
+            for processor in make_dcdp_pre_post_processors(policy.config):
+                processor.save_pretrained(tmp)
         policy.save_pretrained(tmp)
         # the base is recorded relative to the folder saved into; the folder's final place is ``out``
         saved = json.loads((tmp / "config.json").read_text())
@@ -164,7 +236,7 @@ def main(argv: list[str] | None = None) -> None:
         f"(radius {radius:.4g}, near: {100 * stats['near_rate']:.1f} %); "
         f"held-out episodes: accuracy {stats['val_accuracy']:.3f}, "
         f"near recalled {stats['val_near_recall']:.3f}, far kept {stats['val_far_accuracy']:.3f}; "
-        f"wrote {out}"
+        f"wrote {out}" + (" (object_anchored with the gate; no corrector)" if source is None else "")
     )
 
 

@@ -38,6 +38,7 @@ from lerobot_dcdp.base_policy import (
 )
 from lerobot_dcdp.chunk_sources import ChunkSource, make_chunk_source
 from lerobot_dcdp.completion_gate import CompletionGate, gated_action
+from lerobot_dcdp.config_checks import GATED_MODES
 from lerobot_dcdp.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.correction import state_dict_sha256
 from lerobot_dcdp.corrector import Corrector
@@ -307,10 +308,20 @@ class DCDPPolicy(PreTrainedPolicy):
         mode = self.modes[self.config.execution]
         planning = self._async if self.config.planning == "async" else self._sync
         action = planning.act(self.state, batch, mode)
-        if self.completion_gate is not None and self.config.execution == "dcdp":
+        if self.gate_applies:
             plan = self.state.chunk[:, self.state.last_step]
             action = gated_action(plan, action, self.completion_gate(batch))
         return action
+
+    @property
+    def gate_applies(self) -> bool:
+        """Whether the fitted completion gate scales this mode's change of the plan: ``completion_gate`` on
+        and the execution one of the modes that move the plan (``dcdp``, ``object_anchored``)."""
+        return (
+            self.completion_gate is not None
+            and self.config.completion_gate
+            and self.config.execution in GATED_MODES
+        )
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor]) -> Tensor:
@@ -329,7 +340,7 @@ class DCDPPolicy(PreTrainedPolicy):
             self.corrector.push_frame(state, batch)
             chunk = self.source.chunk(prepared)[:, : self.config.n_action_steps]
             corrected = self.corrector.query_chunk(state, chunk)
-            if self.completion_gate is not None:
+            if self.completion_gate is not None and self.config.completion_gate:
                 corrected = gated_action(chunk, corrected, self.completion_gate(batch))
             return corrected
         finally:

@@ -10,13 +10,19 @@ METHOD_NAMES = {
     "closed_loop": "Closed loop (H=1)",
     "temporal_ensemble": "Temporal ensemble (H=1, 0.5)",
     "object_anchored": "Object-anchored chunk (H=8, training-free)",
+    "gated_anchored": "Object-anchored chunk + completion gate (H=8, no corrector)",
     "dcdp": "DCDP (H=8)",
 }
+#: rows that depend on what the model folder learned (corrector, gate): never borrowed from another model
+OWN_ROWS = ("dcdp", "gated_anchored")
+#: the rows judged against open loop by issue 22's goals, with their names in that table
+JUDGED_ROWS = {"dcdp": "DCDP", "gated_anchored": "gated anchoring"}
 COLORS = {
     "open_loop": "C0",
     "closed_loop": "C1",
     "temporal_ensemble": "C2",
     "object_anchored": "C4",
+    "gated_anchored": "C5",
     "dcdp": "C3",
 }
 #: The ceiling row (the privileged scripted expert, ``--methods expert``): cells ``expert|expert|<cond>``,
@@ -126,15 +132,18 @@ def paired_diff(new: dict, old: dict, key: str) -> tuple[float, float]:
 
 
 def baseline_cell(results: dict, label: str, method: str, condition: str, delay: int = 0) -> dict | None:
-    """``label``'s own cell of ``method``, else -- for a baseline, which never calls the corrector -- the cell
-    of another corrector on the same base (weights hash) and the same seeds as ``label``'s DCDP cell."""
+    """``label``'s own cell of ``method``, else -- for a baseline, which uses nothing the folder learned --
+    the cell of another model on the same base (weights hash) and the same seeds as ``label``'s own judged
+    cell (``JUDGED_ROWS``)."""
     cells = results["cells"]
     own = cells.get(cell_key(label, method, condition, delay))
-    if own is not None or method == "dcdp":
+    if own is not None or method in OWN_ROWS:
         return own
     models = results.get("models", {})
     base = models.get(label, {}).get("base_weights_sha256")
-    mine = cells.get(cell_key(label, "dcdp", condition, delay))
+    mine = next(
+        (c for m in JUDGED_ROWS if (c := cells.get(cell_key(label, m, condition, delay))) is not None), None
+    )
     for other, ident in models.items():
         cell = cells.get(cell_key(other, method, condition, delay))
         if (
@@ -148,24 +157,26 @@ def baseline_cell(results: dict, label: str, method: str, condition: str, delay:
     return None
 
 
-def goals_issue22(results: dict, label: str) -> str:
-    """Issue 22's goals, DCDP against open loop on the same seeds, per condition: no harm anywhere (success
-    >= -4 points, score >= -0.01) and, where success is attainable (constant / random drift up to 1.0 px per
-    step), success >= +15 points. Empty when no condition up to 1.0 px/step has both rows."""
+def goals_issue22(results: dict, label: str, method: str = "dcdp") -> str:
+    """Issue 22's goals, ``method`` (a ``JUDGED_ROWS`` row: DCDP, or the gated anchoring) against open loop
+    on the same seeds, per condition: no harm anywhere (success >= -4 points, score >= -0.01) and, where
+    success is attainable (constant / random drift up to 1.0 px per step), success >= +15 points. Empty when
+    no condition up to 1.0 px/step has both rows."""
     cells = results["cells"]
+    name = JUDGED_ROWS[method]
     conds = [
         c
         for c in _conditions(cells, label)
-        if cells.get(cell_key(label, "dcdp", c)) and baseline_cell(results, label, "open_loop", c)
+        if cells.get(cell_key(label, method, c)) and baseline_cell(results, label, "open_loop", c)
     ]
     if not any(magnitude(c) <= ATTAINABLE_MAX_DRIFT for c in conds):
         return ""
     lines = [
-        "DCDP - open loop on the same seeds, ± the paired standard error (a corrector without its own "
-        "open-loop row: the row of another corrector on the same base and seeds). Margin = difference - goal "
+        f"{name} - open loop on the same seeds, ± the paired standard error (a model without its own "
+        "open-loop row: the row of another model on the same base and seeds). Margin = difference - goal "
         "(>= 0: met).",
         "",
-        "| condition | open loop success | DCDP success | Δ success (points) | Δ score | no harm: "
+        f"| condition | open loop success | {name} success | Δ success (points) | Δ score | no harm: "
         f"Δ success >= {NO_HARM_POINTS:+.0f} | no harm: Δ score >= {NO_HARM_SCORE:+.2f} | "
         f"attainable: Δ success >= +{ATTAINABLE_GAIN_POINTS:.0f} |",
         "|---|---|---|---|---|---|---|---|",
@@ -175,7 +186,7 @@ def goals_issue22(results: dict, label: str) -> str:
         return f"{'met' if margin >= 0 else '**missed**'} ({margin:+.{digits}f})"
 
     for c in conds:
-        d, o = cells[cell_key(label, "dcdp", c)], baseline_cell(results, label, "open_loop", c)
+        d, o = cells[cell_key(label, method, c)], baseline_cell(results, label, "open_loop", c)
         ds, ds_se = paired_diff(d, o, "successes")
         dr, dr_se = paired_diff(d, o, "max_rewards")
         attain = (
@@ -207,32 +218,40 @@ def table2(results: dict, label: str) -> str:
 
 
 def gaps(results: dict, label: str) -> str:
-    """The corrector issue's goals, as measured gaps in score (positive = goal met with margin)."""
+    """The corrector issue's goals, as measured gaps in score (positive = goal met with margin), for the
+    folder's judged row: DCDP, or (a gate-only folder without DCDP cells) the gated anchoring."""
     cells = results["cells"]
+    method = next(
+        (m for m in JUDGED_ROWS if any(c["model"] == label and c["method"] == m for c in cells.values())),
+        "dcdp",
+    )
+    name = JUDGED_ROWS[method]
 
     def get(m: str, c: str) -> dict | None:
         return baseline_cell(results, label, m, c)
 
     out = []
     for c in ("constant_2.0", "random_2.0"):
-        d, o = get("dcdp", c), get("open_loop", c)
+        d, o = get(method, c), get("open_loop", c)
         if d and o:
-            out.append(f"- {c}: DCDP - open loop = {d['score'] - o['score']:+.3f} score (goal >= +0.20)")
+            out.append(f"- {c}: {name} - open loop = {d['score'] - o['score']:+.3f} score (goal >= +0.20)")
         for m in ("closed_loop", "temporal_ensemble"):
             x = get(m, c)
             if d and x:
-                out.append(f"- {c}: DCDP - {m} = {d['score'] - x['score']:+.3f} score (goal > 0)")
+                out.append(f"- {c}: {name} - {m} = {d['score'] - x['score']:+.3f} score (goal > 0)")
     for c in _conditions(cells, label):
         if c == "static" or float(c.split("_")[1]) < 1.0:
             continue
-        d, x = get("dcdp", c), get("object_anchored", c)
+        d, x = get(method, c), get("object_anchored", c)
         if d and x:
-            out.append(f"- {c}: DCDP - object_anchored = {d['score'] - x['score']:+.3f} score (moonshot > 0)")
-    d, o = get("dcdp", "static"), get("open_loop", "static")
+            out.append(
+                f"- {c}: {name} - object_anchored = {d['score'] - x['score']:+.3f} score (moonshot > 0)"
+            )
+    d, o = get(method, "static"), get("open_loop", "static")
     if d and o:
-        out.append(f"- static: DCDP - open loop = {d['score'] - o['score']:+.3f} score (goal >= -0.01)")
+        out.append(f"- static: {name} - open loop = {d['score'] - o['score']:+.3f} score (goal >= -0.01)")
         out.append(
-            f"- static: DCDP - open loop = {100 * (d['success_rate'] - o['success_rate']):+.0f} success "
+            f"- static: {name} - open loop = {100 * (d['success_rate'] - o['success_rate']):+.0f} success "
             "points (goal >= -4)"
         )
     return "\n".join(out)
@@ -384,7 +403,11 @@ def plot(results: dict, path: Path, metric: str = "score") -> None:
                 ax.set_ylim(0, 1.02)
             ax.set_xlim(-0.1, top + 0.1)
             ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=8)
+    legend = {}  # every method drawn in any panel, once (a panel may lack some: a gate-only model's)
+    for ax in axes.flat:
+        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
+            legend.setdefault(name, handle)
+    axes[0][0].legend(list(legend.values()), list(legend), fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -481,6 +504,19 @@ def realtime_section(realtime_dir: Path) -> list[str]:
     return parts
 
 
+def folder_line(ident: dict, cells: list[dict]) -> str:
+    """What a model folder holds: a corrector, or (no DCDP cell, a gated-anchoring one) the bare base's
+    completion gate around a corrector that never runs."""
+    methods = {c["method"] for c in cells}
+    if "dcdp" not in methods and "gated_anchored" in methods:
+        gate = ident.get("completion_gate_sha256", "?")[:12]
+        return f"completion gate `{shown_path(ident['corrector'])}` (sha256 `{gate}`; no corrector runs)"
+    return (
+        f"corrector `{shown_path(ident['corrector'])}` ({ident['corrector_params']:,} parameters, sha256 "
+        f"`{ident['corrector_sha256'][:12]}`)"
+    )
+
+
 def write_report(results: dict, report: Path, json_path: Path, realtime_dir: Path | None = None) -> None:
     plot_path, delay_path = plot_paths(json_path)
     success_path = success_plot_path(json_path)
@@ -520,9 +556,8 @@ def write_report(results: dict, report: Path, json_path: Path, realtime_dir: Pat
             f"## {label}",
             "",
             f"Base `{ident['base']}` ({ident['base_type']}, "
-            f"weights sha256 `{ident['base_weights_sha256'][:12]}`), "
-            f"corrector `{shown_path(ident['corrector'])}` ({ident['corrector_params']:,} parameters, sha256 "
-            f"`{ident['corrector_sha256'][:12]}`), {n} episodes per cell.",
+            f"weights sha256 `{ident['base_weights_sha256'][:12]}`), " + folder_line(ident, cells) + ", "
+            f"{n} episodes per cell.",
             "",
             "### Table 1: score ± s.e. (success rate ± s.e.)",
             "",
@@ -537,9 +572,16 @@ def write_report(results: dict, report: Path, json_path: Path, realtime_dir: Pat
             gaps(results, label) or "(not enough cells)",
             "",
         ]
-        mild = goals_issue22(results, label)
-        if mild:
-            parts += ["### Issue 22 goals: no harm anywhere, success where it is attainable", "", mild, ""]
+        for method, name in JUDGED_ROWS.items():
+            mild = goals_issue22(results, label, method)
+            if mild:
+                title = "" if method == "dcdp" else f" ({name})"
+                parts += [
+                    f"### Issue 22 goals{title}: no harm anywhere, success where it is attainable",
+                    "",
+                    mild,
+                    "",
+                ]
         delayed = table_delay(results, label)
         if delayed:
             parts += [

@@ -2,8 +2,9 @@
 
 For each corrector given with ``--model LABEL=DIR`` (default: the shipped diffusion, paper-recipe, ACT and
 demonstrations-only correctors) the base it records is run as ``open_loop`` (H = 8), ``closed_loop`` (H = 1),
-``temporal_ensemble`` (H = 1, 0.5), ``object_anchored`` (H = 8, when the corrector names an anchor feature)
-and ``dcdp`` (H = 8) on static PushT and under constant / random block drift of 0.5 to 2.5 px per step;
+``temporal_ensemble`` (H = 1, 0.5), ``object_anchored`` (H = 8, when the corrector names an anchor feature),
+``gated_anchored`` (``object_anchored`` with the folder's completion gate, when it has one) and ``dcdp``
+(H = 8) on static PushT and under constant / random block drift of 0.5 to 2.5 px per step;
 ``--delays 0 2 4`` adds a base that answers d control steps late (``inference_delay``).
 Seeds 100000.., 300 steps max, an episode ends on success (coverage > 0.95). Writes ``results/benchmark.json``
 (finished cells are kept and not recomputed), the per-step latency at batch 1, a plot, side-by-side videos
@@ -11,10 +12,10 @@ and ``docs/RESULTS.md``.
 
 ``--protocol mild`` (issue 22) is the protocol where an episode can still succeed: static and constant /
 random drift of 0.5, 0.75 and 1.0 px per step, 100 episodes per cell, the demonstrations-only correctors
-with open loop, object anchoring and DCDP, plus the ``expert`` row (the privileged scripted expert executing
-8-step chunks, a ceiling), into its own ``results/benchmark_mild.json`` and ``docs/RESULTS_MILD.md``. Any
-flag given explicitly overrides the protocol's value. A stored cell of another episode count is never
-replaced without ``--force``.
+with open loop, object anchoring and DCDP, the gated correctors and the gated anchorings, plus the ``expert``
+row (the privileged scripted expert executing 8-step chunks, a ceiling), into its own
+``results/benchmark_mild.json`` and ``docs/RESULTS_MILD.md``. Any flag given explicitly overrides the
+protocol's value. A stored cell of another episode count is never replaced without ``--force``.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from lerobot_dcdp.benchmark import shipped_model
 from lerobot_dcdp.benchmark.report import EXPERT, cell_key
 from lerobot_dcdp.correction import state_dict_sha256
 
-METHODS = ["open_loop", "closed_loop", "temporal_ensemble", "object_anchored", "dcdp"]
+METHODS = ["open_loop", "closed_loop", "temporal_ensemble", "object_anchored", "gated_anchored", "dcdp"]
 DEFAULT_MODELS = {
     "diffusion": shipped_model("pusht-dcdp-state"),
     "diffusion_paper_recipe": shipped_model("pusht-dcdp-state-paper-recipe"),
@@ -48,6 +49,9 @@ DEFAULT_MODELS = {
     "diffusion_teleop": shipped_model("pusht-dcdp-state-teleop"),
     "diffusion_demos_late_gated": shipped_model("pusht-dcdp-state-demos-late-gated"),
     "act_demos_late_gated": shipped_model("pusht-dcdp-act-state-demos-late-gated"),
+    # the bare bases with a completion gate (``dcdp-fit-completion-gate --base``): the gated anchoring
+    "diffusion_anchored_gated": shipped_model("pusht-diffusion-state-anchored-gated"),
+    "act_anchored_gated": shipped_model("pusht-act-state-anchored-gated"),
 }
 #: these correctors share their base with ``diffusion`` / ``act``: only their own DCDP row is run by default
 DEFAULT_METHODS = {
@@ -59,9 +63,18 @@ DEFAULT_METHODS = {
     "diffusion_teleop": ["dcdp"],
     "diffusion_demos_late_gated": ["dcdp"],
     "act_demos_late_gated": ["dcdp"],
+    "diffusion_anchored_gated": ["gated_anchored"],
+    "act_anchored_gated": ["gated_anchored"],
 }
-#: the mild protocol's correctors: the first two carry the base's rows (open loop, anchoring) too
-MILD_MODELS = ("diffusion_demos", "act_demos", "diffusion_demos_late_gated", "act_demos_late_gated")
+#: the mild protocol's models: the first two carry the base's rows (open loop, anchoring) too
+MILD_MODELS = (
+    "diffusion_demos",
+    "act_demos",
+    "diffusion_demos_late_gated",
+    "act_demos_late_gated",
+    "diffusion_anchored_gated",
+    "act_anchored_gated",
+)
 
 
 def machine() -> dict:
@@ -118,10 +131,15 @@ def load_model(corrector_dir: str):
 
 
 def set_mode(policy, method: str, delay: int = 0) -> None:
+    """Run ``policy`` as the benchmark's ``method``: an execution mode, ``object_anchored`` always the plain
+    rule, ``gated_anchored`` the rule with the folder's completion gate."""
     limit = policy.source.max_length - policy.config.n_action_steps
     if not 0 <= delay <= limit:
         raise ValueError(f"inference_delay {delay} is out of range for this base: 0..{limit}")
-    policy.config.execution = method
+    if method == "gated_anchored" and policy.completion_gate is None:
+        raise ValueError("gated_anchored needs a folder with a completion gate (dcdp-fit-completion-gate)")
+    policy.config.execution = "object_anchored" if method == "gated_anchored" else method
+    policy.config.completion_gate = policy.completion_gate is not None and method != "object_anchored"
     policy.config.inference_delay = delay
     policy.config.ticks_per_step = 1  # lock-step: every env step is one planned step
     policy.reset()
@@ -146,8 +164,9 @@ def protocols() -> dict[str, dict]:
         },
         "mild": {
             "models": {k: DEFAULT_MODELS[k] for k in MILD_MODELS},
-            "model_methods": {k: ["dcdp"] for k in MILD_MODELS[2:]},  # the others: every method
-            "methods": ["open_loop", "object_anchored", "dcdp", EXPERT],
+            # the others: every method
+            "model_methods": {k: DEFAULT_METHODS[k] for k in MILD_MODELS[2:]},
+            "methods": ["open_loop", "object_anchored", "gated_anchored", "dcdp", EXPERT],
             "conditions": MILD_CONDITIONS,
             "episodes": 100,
             "latency_steps": 0,
@@ -316,9 +335,7 @@ def main(argv: list[str] | None = None) -> None:
             continue
         policy, pre, post, ident = load_model(path)
         results.setdefault("models", {})[label] = ident
-        methods = [
-            m for m in model_methods(a, label) if m != "object_anchored" or policy.config.anchor_feature
-        ]
+        methods = [m for m in model_methods(a, label) if runs(m, policy)]
         todo = [
             (m, c, d)
             for d in a.delays
@@ -474,18 +491,31 @@ def merge_results(disk: dict, ours: dict, loaded: dict) -> dict:
     return merged
 
 
+def runs(method: str, policy) -> bool:
+    """Whether ``policy``'s folder can run ``method``: the anchorings need an anchor feature, the gated one a
+    fitted completion gate."""
+    if method == "object_anchored":
+        return bool(policy.config.anchor_feature)
+    if method == "gated_anchored":
+        return bool(policy.config.anchor_feature) and policy.completion_gate is not None
+    return True
+
+
 def _fresh(cell: dict | None, ident: dict, seeds: list[int], max_steps: int) -> bool:
-    """A stored cell is reused only for the same corrector, base, seeds and step limit."""
+    """A stored cell is reused only for the same corrector (DCDP) or gate (DCDP, gated anchoring), base,
+    seeds and step limit."""
     if not cell:
         return False
     i = cell.get("identity", {})
-    # the baselines never call the corrector: for them only the base has to be the same
-    same_corrector = cell.get("method") not in ("dcdp", None) or (
-        i.get("corrector_sha256") == ident["corrector_sha256"]
-        and i.get("completion_gate_sha256") == ident.get("completion_gate_sha256")
-    )
+    method = cell.get("method")
+    # the baselines never call the corrector or the gate: for them only the base has to be the same
+    same_corrector = method not in ("dcdp", None) or i.get("corrector_sha256") == ident["corrector_sha256"]
+    same_gate = method not in ("dcdp", "gated_anchored", None) or i.get(
+        "completion_gate_sha256"
+    ) == ident.get("completion_gate_sha256")
     return (
         same_corrector
+        and same_gate
         and i.get("base_weights_sha256") == ident["base_weights_sha256"]
         and cell.get("seeds", [None])[0] == seeds[0]
         and cell.get("max_steps") == max_steps
