@@ -67,6 +67,34 @@ def test_step_clock_gives_the_actions_of_sync_planning_with_that_delay(
     policy.close()
 
 
+def test_step_clock_gives_the_gated_anchoring_of_sync_planning(diffusion_base, demo_root) -> None:
+    """A completion gate around ``object_anchored`` (a ``dcdp-fit-completion-gate --base`` folder) scales the
+    same plan step under async planning as under sync planning with the same delay."""
+    key = "observation.environment_state"
+    policy = _policy(
+        diffusion_base,
+        demo_root,
+        n_action_steps=4,
+        execution="object_anchored",
+        anchor_feature=key,
+        completion_gate=True,
+        inference_delay=2,
+    )
+    with torch.no_grad():  # p(near) = 0.5 everywhere: half of the anchoring's change kept
+        policy.completion_gate.net[-1].weight.zero_()
+        policy.completion_gate.net[-1].bias.zero_()
+    pre, _ = make_dcdp_pre_post_processors(policy.config)
+    observations = [pre(dict(o)) for o in env_observations(2, 14)]
+    sync = _run(policy, observations)
+    policy.config.completion_gate = False
+    ungated = _run(policy, observations)
+    assert (sync - ungated).abs().max() > 1e-4  # the block moves in these episodes: the gate matters
+    policy.config.completion_gate = True
+    policy.config.planning, policy.config.planning_clock = "async", "steps"
+    torch.testing.assert_close(_run(policy, observations), sync, atol=1e-6, rtol=0)
+    policy.close()
+
+
 class _GatedBase:
     """Wraps the base's predict_action_chunk: the first call (an episode's first chunk) runs at once, every
     later one blocks until the test opens ``gate``."""
