@@ -17,6 +17,9 @@ and success per setting:
 - ``gate_drift`` (privileged): ``dcdp`` with a completion-gated corrector where, as far as the gate fires, the
   plan is moved by this share of the drift the env applied since plan time (read from the env's
   ``perturbation_offset``): does a finish that follows the world's motion alone, not the push, finish more?
+- ``drift_lead`` (privileged): the plain ``object_anchored`` rule with every action moved ``lead`` steps of
+  the env's own drift (the world's motion on the newest step, never the push): does leading on the world's
+  velocity beat the rule at fast drift?
 - ``gate_anchor``: ``object_anchored`` (the training-free rule) with a corrector's completion gate applied at
   this strength (0: the plain rule; 1: the plan itself where the gate says "nearly done"): is the learned
   corrector, gated, better than its analytic teacher gated the same way?
@@ -26,6 +29,7 @@ Usage: .venv/bin/python scripts/alignment_screens.py --screen horizon --settings
        --screen extrapolate --settings 0 4 8 [--k 4];  --screen lead --settings 0 2 4
        --screen gate_share --settings 0 0.25 0.5;  --screen gate_drift --settings 0 1
        --screen ensemble --settings 0.5 0.1;  --screen gate_anchor --settings 0 1
+       --screen drift_lead --settings 0 1 2 --condition constant_2.0 --episodes 50
 """
 
 from __future__ import annotations
@@ -149,6 +153,26 @@ def gate_drift(args: argparse.Namespace, share: float):
     return act, envs, seeds, on_step
 
 
+def drift_lead(args: argparse.Namespace, lead: float):
+    """``object_anchored`` (plain) with every action moved ``lead`` steps of the env's own drift ahead
+    (privileged: the world's per-step motion read from the env, never the agent's push)."""
+    from near_misses import condition_rollout
+
+    policy, _, anchored, envs, seeds = condition_rollout(
+        args.policy, args.condition, args.episodes, "object_anchored"
+    )
+    policy.config.completion_gate = False  # the plain rule, whatever the folder holds
+    velocity = np.zeros((len(seeds), 2))  # the drift the env applied on the newest step
+
+    def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
+        return anchored(obs, active) + lead * velocity
+
+    def on_step(i: int, obs: dict, reward: float, info: dict) -> None:
+        velocity[i] = info["perturbation_offset"]
+
+    return act, envs, seeds, on_step
+
+
 def gate_anchor(args: argparse.Namespace, strength: float):
     """``object_anchored`` with the corrector's completion gate at ``strength``."""
     from near_misses import condition_rollout
@@ -180,6 +204,7 @@ SCREENS = {
     "ensemble": ensemble,
     "gate_drift": gate_drift,
     "gate_anchor": gate_anchor,
+    "drift_lead": drift_lead,
 }
 
 
