@@ -194,6 +194,12 @@ def test_fit_cli_around_a_bare_base_writes_a_gated_anchoring_folder(
     with torch.no_grad():
         guess = loaded.completion_gate.logit(x) > 0
     assert guess[near].float().mean() > 0.8 and (~guess[~near]).float().mean() > 0.8
+    # completion_gate=false (e.g. --policy.completion_gate=false) loads the folder and runs the gate off
+    off = cfg.__class__.from_pretrained(str(out))
+    off.completion_gate = False
+    unplugged = DCDPPolicy.from_pretrained(str(out), config=off)
+    assert unplugged.completion_gate is not None and not unplugged.gate_applies
+    assert loaded.gate_applies
     # its corrector never trained: run as dcdp it is exactly the base's plan
     pre, _ = make_dcdp_pre_post_processors(cfg)
     cfg.execution = "dcdp"

@@ -110,9 +110,11 @@ class DCDPPolicy(PreTrainedPolicy):
             self.corrector = ReconstructCorrector(config, state_dims, image_keys, low, high)
         if dataset_stats is not None:
             self.corrector.set_input_scaling(dataset_stats)
-        # the learned "nearly done" gate (completion_gate.py), fitted by dcdp-fit-completion-gate
+        # the learned "nearly done" gate (completion_gate.py), fitted by dcdp-fit-completion-gate (which
+        # records its radius): a fitted gate is always built, so completion_gate=false loads and runs it off
         self.state_dims = state_dims  # the corrector's vector features and their sizes
-        self.completion_gate = CompletionGate(state_dims) if config.completion_gate else None
+        fitted = config.completion_gate or config.completion_radius is not None
+        self.completion_gate = CompletionGate(state_dims) if fitted else None
         self._register_load_state_dict_pre_hook(_legacy_keys)
         declared = {**(base.config.input_features or {}), **(config.input_features or {})}
         needed = [*self.corrector.frame_keys, *sorted(base.config.input_features or {})]
