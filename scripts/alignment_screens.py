@@ -20,6 +20,8 @@ and success per setting:
 - ``drift_lead`` (privileged): the plain ``object_anchored`` rule with every action moved ``lead`` steps of
   the env's own drift (the world's motion on the newest step, never the push): does leading on the world's
   velocity beat the rule at fast drift?
+- ``gated_horizon``: a folder's gated anchoring (``gated_anchored``) executing H steps per chunk: does a
+  longer chunk, kept closed-loop by the rule, complete more?
 - ``gate_anchor``: ``object_anchored`` (the training-free rule) with a corrector's completion gate applied at
   this strength (0: the plain rule; 1: the plan itself where the gate says "nearly done"): is the learned
   corrector, gated, better than its analytic teacher gated the same way?
@@ -30,6 +32,7 @@ Usage: .venv/bin/python scripts/alignment_screens.py --screen horizon --settings
        --screen gate_share --settings 0 0.25 0.5;  --screen gate_drift --settings 0 1
        --screen ensemble --settings 0.5 0.1;  --screen gate_anchor --settings 0 1
        --screen drift_lead --settings 0 1 2 --condition constant_2.0 --episodes 50
+       --screen gated_horizon --settings 8 12 16 --policy models/pusht-act-state-anchored-gated
 """
 
 from __future__ import annotations
@@ -46,6 +49,18 @@ def horizon(args: argparse.Namespace, steps: float):
     from near_misses import condition_rollout
 
     policy, _, act, envs, seeds = condition_rollout(args.policy, args.condition, args.episodes, "open_loop")
+    policy.config.n_action_steps = int(steps)
+    policy.reset()
+    return act, envs, seeds
+
+
+def gated_horizon(args: argparse.Namespace, steps: float):
+    """``gated_anchored`` (the folder's rule with its completion gate) executing ``steps`` steps per chunk."""
+    from near_misses import condition_rollout
+
+    policy, _, act, envs, seeds = condition_rollout(
+        args.policy, args.condition, args.episodes, "gated_anchored"
+    )
     policy.config.n_action_steps = int(steps)
     policy.reset()
     return act, envs, seeds
@@ -205,6 +220,7 @@ SCREENS = {
     "gate_drift": gate_drift,
     "gate_anchor": gate_anchor,
     "drift_lead": drift_lead,
+    "gated_horizon": gated_horizon,
 }
 
 
