@@ -119,7 +119,7 @@ def gate_share(args: argparse.Namespace, share: float):
     from lerobot_dcdp.completion_gate import gated_action
 
     policy, _, act, envs, seeds = condition_rollout(args.policy, args.condition, args.episodes, "dcdp")
-    if not policy.config.completion_gate:
+    if policy.completion_gate is None:
         raise SystemExit(f"{args.policy} has no completion gate")
     modeling.gated_action = lambda plan, action, near: gated_action(plan, action, (1.0 - share) * near)
     return act, envs, seeds
@@ -144,7 +144,7 @@ def gate_drift(args: argparse.Namespace, share: float):
     from lerobot_dcdp.completion_gate import gated_action
 
     policy, _, corrected, envs, seeds = condition_rollout(args.policy, args.condition, args.episodes, "dcdp")
-    if not policy.config.completion_gate:
+    if policy.completion_gate is None:
         raise SystemExit(f"{args.policy} has no completion gate")
     near = {}
 
@@ -197,7 +197,7 @@ def gate_anchor(args: argparse.Namespace, strength: float):
     policy, _, act, envs, seeds = condition_rollout(
         args.policy, args.condition, args.episodes, "object_anchored"
     )
-    if not policy.config.completion_gate:
+    if policy.completion_gate is None:
         raise SystemExit(f"{args.policy} has no completion gate")
     anchored = policy.modes["object_anchored"]
     rule = anchored.act

@@ -62,8 +62,10 @@ def main() -> None:
     seeds = list(range(a.seed_start, a.seed_start + a.episodes))
     print(f"policy {a.policy}, {a.episodes} episodes per cell from seed {a.seed_start}")
     judged = next((m for m in ("dcdp", "gated_anchored") if m in a.methods), None)
-    print("| condition | " + " | ".join(a.methods) + f" | {judged} - open loop (score, success points) |")
-    print("|---" * (len(a.methods) + 2) + "|")
+    judged = judged if "open_loop" in a.methods else None
+    difference = [f"{judged} - open loop (score, success points)"] if judged else []
+    print("| " + " | ".join(["condition", *a.methods, *difference]) + " |")
+    print("|---" * (len(a.methods) + 1 + len(difference)) + "|")
     for text in a.conditions:
         cond, kwargs = parse_condition(text)
         res = {}
@@ -74,12 +76,12 @@ def main() -> None:
         for m in a.methods:
             r, rate = np.array(res[m].max_rewards), 100 * res[m].success_rate
             cells.append(f"{r.mean():.3f} ± {r.std(ddof=1) / np.sqrt(len(r)):.3f} ({rate:.0f} %)")
-        diff = ""
-        if judged and "open_loop" in res:
+        diff = []
+        if difference:
             d = np.array(res[judged].max_rewards) - np.array(res["open_loop"].max_rewards)
             s = 100 * (res[judged].success_rate - res["open_loop"].success_rate)
-            diff = f"{d.mean():+.3f} ± {d.std(ddof=1) / np.sqrt(len(d)):.3f}, {s:+.0f}"
-        print(f"| {text} | " + " | ".join(cells) + f" | {diff} |", flush=True)
+            diff = [f"{d.mean():+.3f} ± {d.std(ddof=1) / np.sqrt(len(d)):.3f}, {s:+.0f}"]
+        print("| " + " | ".join([text, *cells, *diff]) + " |", flush=True)
 
 
 if __name__ == "__main__":

@@ -185,6 +185,7 @@ def test_fit_cli_around_a_bare_base_writes_a_gated_anchoring_folder(
     loaded = DCDPPolicy.from_pretrained(str(out)).eval()
     cfg = loaded.config
     assert cfg.execution == "object_anchored" and cfg.anchor_feature == key
+    assert cfg.n_action_steps == 8  # the base's own
     assert cfg.completion_gate and cfg.completion_radius == 30
     assert json.loads((out / "config.json").read_text())["base_policy_path"] != str(diffusion_base)
     assert (out / "policy_preprocessor.json").is_file() and (out / "policy_postprocessor.json").is_file()
@@ -212,7 +213,21 @@ def test_fit_cli_around_a_bare_base_writes_a_gated_anchoring_folder(
     for bad, message in (
         (["--base", str(diffusion_base), *data], "--anchor-feature"),
         (["--base", str(diffusion_base), "--anchor-feature", "observation.nope", *data], "observation.nope"),
-        (["--policy", str(out), "--anchor-feature", key, *data], "goes with --base"),
+        (["--policy", str(out), "--anchor-feature", key, *data], "go with --base"),
+        (["--base", str(diffusion_base), "--anchor-feature", key, *data, "--n-action-steps", "99"], "--base"),
+        (
+            [
+                "--base",
+                str(diffusion_base),
+                "--anchor-feature",
+                key,
+                "--repo-id",
+                "x",
+                "--root",
+                str(tmp_path),
+            ],
+            "--root",
+        ),
     ):
         with pytest.raises(SystemExit, match=message):
             main([*bad, "--out", str(tmp_path / "bad"), "--steps", "1"])

@@ -8,8 +8,10 @@ demonstrations, where "nearly done" is: a frame is *near completion* when the ob
 with the task done, so its last frame is the goal, whatever the task. The radius is a fraction of the
 demonstrations' own scale (``travel_scale``: how far the object typically travels to its end), so the same
 default fits pixels, metres or any other unit. At run time the policy scales the
-correction by ``1 - p(near)`` (``DCDPPolicy``; ``completion_gate=true``). Fitted after stage 1 by
-``dcdp-fit-completion-gate`` (``fit_completion_gate.py``).
+change of the plan by ``1 - p(near)`` in the modes that move it, ``dcdp`` and ``object_anchored``
+(``DCDPPolicy.gate_applies``; ``completion_gate=true``). Fitted by ``dcdp-fit-completion-gate``
+(``fit_completion_gate.py``): after stage 1 on a corrector, or around a bare base for the training-free
+anchoring.
 """
 
 from __future__ import annotations

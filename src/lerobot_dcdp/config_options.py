@@ -138,7 +138,8 @@ class CorrectionOptions:
             nearly done (``completion_gate.py``), so the final alignment runs the base's own plan. Fitted on
             demonstrations by ``dcdp-fit-completion-gate``, which sets it: after stage 1 (``--policy``), or
             around a bare base for the training-free anchoring (``--base``); ``lerobot-train`` leaves the gate
-            as it is. ``false`` on a folder with a fitted gate runs without it. Default False.
+            as it is. ``false`` on a folder with a fitted gate (one that records ``completion_radius``) runs
+            without it. Default False.
         completion_radius: The gate's "nearly done" it was fitted with: the object's keypoints
             (``anchor_feature``) within this mean distance (raw units) of their place on the demonstration's
             last frame. Recorded by ``dcdp-fit-completion-gate`` (by default 0.15 of the object's typical

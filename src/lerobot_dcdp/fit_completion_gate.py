@@ -126,14 +126,22 @@ UNUSED_CORRECTOR = dict(
 )
 
 
-def gated_anchoring_policy(base: str, anchor_feature: str, dataset_meta):
+def gated_anchoring_policy(base: str, anchor_feature: str, dataset_meta, n_action_steps: int | None = None):
     """A DCDP policy around the bare ``base`` that runs ``object_anchored`` on ``anchor_feature`` with a
-    (not yet fitted) completion gate; its fresh corrector (``UNUSED_CORRECTOR``'s sizes) reads the dataset's
-    state features and is exactly the base's plan (the residual head starts at zero)."""
+    (not yet fitted) completion gate, executing ``n_action_steps`` per chunk (default: the base's own, else
+    DCDP's default). Its fresh corrector
+    (``UNUSED_CORRECTOR``'s sizes) and the gate read the state features the base reads, plus the anchor
+    feature; the corrector is exactly the base's plan (the residual head starts at zero).
+
+    Raises:
+        ValueError: the anchor feature is not in the dataset, or the base and the dataset do not fit together.
+    """
+    from lerobot.configs.policies import PreTrainedConfig
     from lerobot.configs.types import FeatureType
     from lerobot.policies.factory import make_policy
     from lerobot.utils.feature_utils import dataset_to_policy_features
 
+    from lerobot_dcdp.base_policy import resolve_base_reference
     from lerobot_dcdp.configuration_dcdp import DCDPConfig
 
     features = dataset_to_policy_features(dataset_meta.features)
@@ -141,11 +149,14 @@ def gated_anchoring_policy(base: str, anchor_feature: str, dataset_meta):
         raise ValueError(
             f"--anchor-feature {anchor_feature!r} is not a feature of the dataset ({sorted(features)})"
         )
-    state = [k for k, f in features.items() if f.type in (FeatureType.STATE, FeatureType.ENV)]
+    base_config = PreTrainedConfig.from_pretrained(resolve_base_reference(base))
+    reads = set(base_config.input_features or {}) | {anchor_feature}
+    state = [k for k, f in features.items() if f.type in (FeatureType.STATE, FeatureType.ENV) and k in reads]
     config = DCDPConfig(
         base_policy_path=str(Path(base).resolve()) if Path(base).is_dir() else base,
         anchor_feature=anchor_feature,
         execution="object_anchored",
+        n_action_steps=n_action_steps or getattr(base_config, "n_action_steps", None) or 8,
         completion_gate=True,
         observation_features=state,
         **UNUSED_CORRECTOR,
@@ -164,6 +175,11 @@ def main(argv: list[str] | None = None) -> None:
     )
     p.add_argument(
         "--anchor-feature", help="with --base: the observation key of the object's xy keypoints (needed)"
+    )
+    p.add_argument(
+        "--n-action-steps",
+        type=int,
+        help="with --base: actions executed per chunk (default: the base's own n_action_steps, else 8)",
     )
     p.add_argument("--repo-id", required=True, help="demonstrations (LeRobotDataset repo id)")
     p.add_argument("--root", required=True, help="the demonstrations' local folder")
@@ -187,8 +203,10 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(f"--radius must be > 0, got {a.radius}")
     if a.base is not None and not a.anchor_feature:
         sys.exit("--base needs --anchor-feature: the observation key of the object's xy keypoints")
-    if a.policy is not None and a.anchor_feature:
-        sys.exit("--anchor-feature goes with --base; a corrector (--policy) keeps its own anchor_feature")
+    if a.policy is not None and (a.anchor_feature or a.n_action_steps):
+        sys.exit("--anchor-feature and --n-action-steps go with --base; a corrector (--policy) keeps its own")
+    if a.n_action_steps is not None and a.n_action_steps < 1:
+        sys.exit(f"--n-action-steps must be >= 1, got {a.n_action_steps}")
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     from lerobot_dcdp.modeling_dcdp import DCDPPolicy
@@ -197,6 +215,8 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(a.out)
     if out.exists():
         sys.exit(f"--out {out} exists: give a new folder")
+    if not (Path(a.root) / "meta" / "info.json").is_file():  # LeRobotDataset would create it and go online
+        sys.exit(f"--root {a.root} holds no LeRobotDataset (no meta/info.json)")
     torch.set_num_threads(1)
     dataset = LeRobotDataset(a.repo_id, root=a.root)
     if a.policy is not None:
@@ -206,15 +226,19 @@ def main(argv: list[str] | None = None) -> None:
         policy.completion_gate = CompletionGate(policy.state_dims)
     else:
         source = None
+        torch.manual_seed(a.seed)  # the unused corrector too: the same command writes the same folder
         try:
-            policy = gated_anchoring_policy(a.base, a.anchor_feature, dataset.meta)
+            policy = gated_anchoring_policy(a.base, a.anchor_feature, dataset.meta, a.n_action_steps)
         except ValueError as e:
-            sys.exit(str(e))
-    x, episodes, points = gate_data(policy, dataset)
-    radius = a.radius if a.radius is not None else a.radius_fraction * travel_scale(points, episodes)
-    policy.config.completion_radius = radius
-    near = completion_labels(points, episodes, radius)
-    stats = fit_gate(policy.completion_gate, x, near, episodes, a.steps, a.lr, a.val_fraction, a.seed)
+            sys.exit(f"--base {a.base} with the demonstrations {a.root}: {e}")
+    try:
+        x, episodes, points = gate_data(policy, dataset)
+        radius = a.radius if a.radius is not None else a.radius_fraction * travel_scale(points, episodes)
+        policy.config.completion_radius = radius
+        near = completion_labels(points, episodes, radius)
+        stats = fit_gate(policy.completion_gate, x, near, episodes, a.steps, a.lr, a.val_fraction, a.seed)
+    except ValueError as e:
+        sys.exit(f"cannot fit the completion gate on {a.root}: {e}")
     with staged_dir(out) as tmp:
         tmp.mkdir()
         if source is not None:  # the corrector's processors and the rest of its folder

@@ -116,6 +116,8 @@ def load_model(corrector_dir: str):
 
     policy = DCDPPolicy.from_pretrained(corrector_dir)
     policy.eval()
+    if not policy.config.completion_gate:  # a folder that turns its fitted gate off is run without one
+        policy.completion_gate = None
     pre, post = make_pre_post_processors(policy.config, pretrained_path=corrector_dir)
     identity = {
         "corrector": corrector_dir,
@@ -255,7 +257,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def model_methods(a: argparse.Namespace, label: str) -> list[str]:
-    """The base/corrector methods run for ``label`` (before the anchor-feature check)."""
+    """The base/corrector methods run for ``label`` (before ``runs`` checks what the folder can run)."""
     return [m for m in a.methods if m != EXPERT and m in a.model_methods.get(label, METHODS)]
 
 
