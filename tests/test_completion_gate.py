@@ -8,7 +8,13 @@ import pytest
 import torch
 from helpers import env_observations, make_dcdp_policy
 
-from lerobot_dcdp.completion_gate import completion_labels, gated_action, travel_scale
+from lerobot_dcdp.completion_gate import (
+    build_gate,
+    completion_labels,
+    gate_applies,
+    gated_action,
+    travel_scale,
+)
 from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
 
 
@@ -232,3 +238,22 @@ def test_fit_cli_around_a_bare_base_writes_a_gated_anchoring_folder(
         with pytest.raises(SystemExit, match=message):
             main([*bad, "--out", str(tmp_path / "bad"), "--steps", "1"])
         assert not (tmp_path / "bad").exists()
+
+
+def test_a_fitted_gate_is_built_and_applies_only_where_on_and_moving_the_plan() -> None:
+    from types import SimpleNamespace
+
+    dims = {"observation.environment_state": 4}
+    for on, radius, built in ((True, None, True), (False, 20.0, True), (False, None, False)):
+        config = SimpleNamespace(completion_gate=on, completion_radius=radius)
+        assert (build_gate(config, dims) is not None) == built
+    gate = build_gate(SimpleNamespace(completion_gate=True, completion_radius=None), dims)
+    for execution, on, applies in (
+        ("dcdp", True, True),
+        ("object_anchored", True, True),
+        ("open_loop", True, False),
+        ("closed_loop", True, False),
+        ("object_anchored", False, False),
+    ):
+        assert gate_applies(gate, SimpleNamespace(completion_gate=on, execution=execution)) == applies
+    assert not gate_applies(None, SimpleNamespace(completion_gate=True, execution="dcdp"))

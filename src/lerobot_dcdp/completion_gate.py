@@ -19,6 +19,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from lerobot_dcdp.config_checks import GATED_MODES
+
 
 def distance_to_end(points: Tensor, episode_index: Tensor) -> Tensor:
     """Mean keypoint distance (T,) of each frame's object to its place on its episode's last frame (pure).
@@ -119,3 +121,18 @@ def gated_action(plan: Tensor, action: Tensor, near: Tensor) -> Tensor:
     (B,): one action (B, A) or a whole chunk (B, H, A)."""
     keep = (1.0 - near).reshape(-1, *[1] * (action.ndim - 1))
     return plan + keep * (action - plan)
+
+
+def gate_applies(gate: CompletionGate | None, config) -> bool:
+    """Whether a fitted ``gate`` scales the current mode's change of the plan (pure): ``completion_gate`` on
+    and ``config.execution`` one of the modes that move the plan (``GATED_MODES``: ``dcdp``,
+    ``object_anchored``)."""
+    return gate is not None and config.completion_gate and config.execution in GATED_MODES
+
+
+def build_gate(config, dims: dict[str, int]) -> CompletionGate | None:
+    """The gate module a policy with ``config`` holds: one whenever a gate was fitted (``completion_gate``
+    on, or its ``completion_radius`` recorded), so ``completion_gate=false`` still loads the folder and runs
+    it off; ``None`` otherwise."""
+    fitted = config.completion_gate or config.completion_radius is not None
+    return CompletionGate(dims) if fitted else None

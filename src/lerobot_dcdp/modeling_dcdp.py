@@ -37,8 +37,7 @@ from lerobot_dcdp.base_policy import (
     resolve_base_reference,
 )
 from lerobot_dcdp.chunk_sources import ChunkSource, make_chunk_source
-from lerobot_dcdp.completion_gate import CompletionGate, gated_action
-from lerobot_dcdp.config_checks import GATED_MODES
+from lerobot_dcdp.completion_gate import build_gate, gate_applies, gated_action
 from lerobot_dcdp.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.correction import state_dict_sha256
 from lerobot_dcdp.corrector import Corrector
@@ -110,11 +109,8 @@ class DCDPPolicy(PreTrainedPolicy):
             self.corrector = ReconstructCorrector(config, state_dims, image_keys, low, high)
         if dataset_stats is not None:
             self.corrector.set_input_scaling(dataset_stats)
-        # the learned "nearly done" gate (completion_gate.py), fitted by dcdp-fit-completion-gate (which
-        # records its radius): a fitted gate is always built, so completion_gate=false loads and runs it off
         self.state_dims = state_dims  # the corrector's vector features and their sizes
-        fitted = config.completion_gate or config.completion_radius is not None
-        self.completion_gate = CompletionGate(state_dims) if fitted else None
+        self.completion_gate = build_gate(config, state_dims)  # fitted by dcdp-fit-completion-gate
         self._register_load_state_dict_pre_hook(_legacy_keys)
         declared = {**(base.config.input_features or {}), **(config.input_features or {})}
         needed = [*self.corrector.frame_keys, *sorted(base.config.input_features or {})]
@@ -317,13 +313,8 @@ class DCDPPolicy(PreTrainedPolicy):
 
     @property
     def gate_applies(self) -> bool:
-        """Whether the fitted completion gate scales this mode's change of the plan: ``completion_gate`` on
-        and the execution one of the modes that move the plan (``dcdp``, ``object_anchored``)."""
-        return (
-            self.completion_gate is not None
-            and self.config.completion_gate
-            and self.config.execution in GATED_MODES
-        )
+        """Whether the fitted completion gate scales this mode's change of the plan (``gate_applies``)."""
+        return gate_applies(self.completion_gate, self.config)
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor]) -> Tensor:
