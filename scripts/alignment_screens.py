@@ -22,6 +22,12 @@ and success per setting:
   velocity beat the rule at fast drift?
 - ``gated_horizon``: a folder's gated anchoring (``gated_anchored``) executing H steps per chunk: does a
   longer chunk, kept closed-loop by the rule, complete more?
+- ``goal_lead``: a method (``--method``, default ``gated_anchored``) run on a scene moved ``lead`` steps of
+  the object's motion ahead (agent and object together), its actions moved back: the base leaves the object
+  that far upstream of the goal, for the drift to carry it in (a still-scene finish settles downstream of the
+  goal under drift). ``--velocity true`` (privileged): the env's own drift; ``median``: the median per-step
+  motion of the object's keypoint centroid over ``--window`` steps (what ``scene_lead.py`` builds in). The
+  screen leads by hand; the folder's own ``lead_steps`` is turned off.
 - ``gate_anchor``: ``object_anchored`` (the training-free rule) with a corrector's completion gate applied at
   this strength (0: the plain rule; 1: the plan itself where the gate says "nearly done"): is the learned
   corrector, gated, better than its analytic teacher gated the same way?
@@ -33,6 +39,9 @@ Usage: .venv/bin/python scripts/alignment_screens.py --screen horizon --settings
        --screen ensemble --settings 0.5 0.1;  --screen gate_anchor --settings 0 1
        --screen drift_lead --settings 0 1 2 --condition constant_2.0 --episodes 50
        --screen gated_horizon --settings 8 12 16 --policy models/pusht-act-state-anchored-gated
+       --screen goal_lead --settings 0 8 --velocity median --window 16 [--method gated_anchored]
+       Screens run a folder with its own scene lead unless ``--lead-steps`` says otherwise (the screens
+       recorded before the lead existed: ``--lead-steps 0``).
 """
 
 from __future__ import annotations
@@ -48,7 +57,9 @@ def horizon(args: argparse.Namespace, steps: float):
     """``open_loop`` replanning every ``steps`` steps."""
     from near_misses import condition_rollout
 
-    policy, _, act, envs, seeds = condition_rollout(args.policy, args.condition, args.episodes, "open_loop")
+    policy, _, act, envs, seeds = condition_rollout(
+        args.policy, args.condition, args.episodes, "open_loop", lead_steps=args.lead_steps
+    )
     policy.config.n_action_steps = int(steps)
     policy.reset()
     return act, envs, seeds
@@ -59,7 +70,7 @@ def gated_horizon(args: argparse.Namespace, steps: float):
     from near_misses import condition_rollout
 
     policy, _, act, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "gated_anchored"
+        args.policy, args.condition, args.episodes, "gated_anchored", lead_steps=args.lead_steps
     )
     policy.config.n_action_steps = int(steps)
     policy.reset()
@@ -74,7 +85,9 @@ def extrapolate(args: argparse.Namespace, lead: float):
     from lerobot_dcdp.benchmark.rollout import _stack_obs
     from lerobot_dcdp.benchmark.run import load_model
 
-    policy, post, _, envs, seeds = condition_rollout(args.policy, args.condition, args.episodes, "open_loop")
+    policy, post, _, envs, seeds = condition_rollout(
+        args.policy, args.condition, args.episodes, "open_loop", lead_steps=args.lead_steps
+    )
     _, pre, _, _ = load_model(args.policy)
     history = []
 
@@ -95,7 +108,7 @@ def lead(args: argparse.Namespace, steps: float):
     from near_misses import condition_rollout
 
     policy, _, act, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "object_anchored"
+        args.policy, args.condition, args.episodes, "object_anchored", lead_steps=args.lead_steps
     )
     anchored = policy.modes["object_anchored"]
     previous = {}
@@ -118,7 +131,9 @@ def gate_share(args: argparse.Namespace, share: float):
     import lerobot_dcdp.modeling_dcdp as modeling
     from lerobot_dcdp.completion_gate import gated_action
 
-    policy, _, act, envs, seeds = condition_rollout(args.policy, args.condition, args.episodes, "dcdp")
+    policy, _, act, envs, seeds = condition_rollout(
+        args.policy, args.condition, args.episodes, "dcdp", lead_steps=args.lead_steps
+    )
     if policy.completion_gate is None:
         raise SystemExit(f"{args.policy} has no completion gate")
     modeling.gated_action = lambda plan, action, near: gated_action(plan, action, (1.0 - share) * near)
@@ -130,7 +145,7 @@ def ensemble(args: argparse.Namespace, weight: float):
     from near_misses import condition_rollout
 
     policy, _, act, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "temporal_ensemble"
+        args.policy, args.condition, args.episodes, "temporal_ensemble", lead_steps=args.lead_steps
     )
     policy.config.te_weight = weight
     return act, envs, seeds
@@ -143,7 +158,9 @@ def gate_drift(args: argparse.Namespace, share: float):
     import lerobot_dcdp.modeling_dcdp as modeling
     from lerobot_dcdp.completion_gate import gated_action
 
-    policy, _, corrected, envs, seeds = condition_rollout(args.policy, args.condition, args.episodes, "dcdp")
+    policy, _, corrected, envs, seeds = condition_rollout(
+        args.policy, args.condition, args.episodes, "dcdp", lead_steps=args.lead_steps
+    )
     if policy.completion_gate is None:
         raise SystemExit(f"{args.policy} has no completion gate")
     near = {}
@@ -174,7 +191,7 @@ def drift_lead(args: argparse.Namespace, lead: float):
     from near_misses import condition_rollout
 
     policy, _, anchored, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "object_anchored"
+        args.policy, args.condition, args.episodes, "object_anchored", lead_steps=args.lead_steps
     )
     policy.config.completion_gate = False  # the plain rule, whatever the folder holds
     velocity = np.zeros((len(seeds), 2))  # the drift the env applied on the newest step
@@ -188,6 +205,47 @@ def drift_lead(args: argparse.Namespace, lead: float):
     return act, envs, seeds, on_step
 
 
+def goal_lead(args: argparse.Namespace, lead: float):
+    """``--method`` on the scene moved ``lead`` steps of the object's motion ahead, actions moved back."""
+    from lerobot.envs.utils import preprocess_observation
+    from near_misses import condition_rollout
+
+    from lerobot_dcdp.benchmark.rollout import _stack_obs
+    from lerobot_dcdp.benchmark.run import load_model
+
+    # the lead by hand here: the folder's own off
+    policy, post, _, envs, seeds = condition_rollout(
+        args.policy, args.condition, args.episodes, args.method, lead_steps=0
+    )
+
+    _, pre, _, _ = load_model(args.policy)
+    velocity = np.zeros((len(seeds), 2))  # the drift the env applied on the newest step
+
+    history = []  # the object's keypoint centroid per step (observed estimate)
+
+    def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
+        stacked = _stack_obs(obs)
+        if args.velocity == "median":
+            history.append(stacked["environment_state"].reshape(len(obs), -1, 2).mean(1))
+            if len(history) > args.window:
+                steps = np.diff(np.stack(history[-args.window - 1 :]), axis=0)  # (W, B, 2)
+                velocity[:] = np.median(steps, axis=0)
+        shift = lead * velocity
+        moved = {
+            "agent_pos": stacked["agent_pos"] + shift,
+            "environment_state": (
+                stacked["environment_state"].reshape(len(obs), -1, 2) + shift[:, None]
+            ).reshape(len(obs), -1),
+        }
+        return post(policy.select_action(pre(preprocess_observation(moved)))).cpu().numpy() - shift
+
+    def on_step(i: int, obs: dict, reward: float, info: dict) -> None:
+        if args.velocity == "true":
+            velocity[i] = info["perturbation_offset"]
+
+    return act, envs, seeds, on_step
+
+
 def gate_anchor(args: argparse.Namespace, strength: float):
     """``object_anchored`` with the corrector's completion gate at ``strength``."""
     from near_misses import condition_rollout
@@ -195,7 +253,7 @@ def gate_anchor(args: argparse.Namespace, strength: float):
     from lerobot_dcdp.completion_gate import gated_action
 
     policy, _, act, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "object_anchored"
+        args.policy, args.condition, args.episodes, "object_anchored", lead_steps=args.lead_steps
     )
     if policy.completion_gate is None:
         raise SystemExit(f"{args.policy} has no completion gate")
@@ -221,6 +279,7 @@ SCREENS = {
     "gate_anchor": gate_anchor,
     "drift_lead": drift_lead,
     "gated_horizon": gated_horizon,
+    "goal_lead": goal_lead,
 }
 
 
@@ -233,6 +292,19 @@ def main() -> None:
     p.add_argument("--policy", default="models/pusht-dcdp-state-demos-late-gated")
     p.add_argument("--condition", default="constant_0.5")
     p.add_argument("--episodes", type=int, default=100)
+    p.add_argument(
+        "--lead-steps",
+        type=int,
+        help="override the folder's scene lead (the screens before it existed ran with none: 0)",
+    )
+    p.add_argument("--method", default="gated_anchored", help="goal_lead: the execution method")
+    p.add_argument(
+        "--velocity",
+        choices=["true", "median"],
+        default="true",
+        help="goal_lead: the env's drift (privileged) or the median per-step object motion",
+    )
+    p.add_argument("--window", type=int, default=16, help="goal_lead --velocity median: steps")
     p.add_argument("--k", type=int, default=4, help="extrapolate: steps the object's velocity is taken over")
     a = p.parse_args()
     torch.set_num_threads(1)

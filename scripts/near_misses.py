@@ -20,11 +20,17 @@ import torch
 
 
 def condition_rollout(
-    policy_path: str, condition: str, episodes: int, method: str, seed_start: int = 100_000
+    policy_path: str,
+    condition: str,
+    episodes: int,
+    method: str,
+    seed_start: int = 100_000,
+    lead_steps: int | None = None,
 ) -> tuple:
     """The benchmark's envs for one condition and the corrector in one execution mode, seeded as the benchmark
-    seeds a batch. Returns ``(policy, post, act, envs, seeds)``: ``post`` the corrector's post-processor,
-    ``act`` the policy call ``run_lockstep`` takes."""
+    seeds a batch; ``lead_steps`` overrides the folder's scene lead (None: the folder's, as the benchmark runs
+    it). Returns ``(policy, post, act, envs, seeds)``: ``post`` the corrector's post-processor, ``act`` the
+    policy call ``run_lockstep`` takes."""
     from lerobot.envs.utils import preprocess_observation
 
     from lerobot_dcdp.benchmark.rollout import CONDITIONS, _stack_obs
@@ -35,6 +41,8 @@ def condition_rollout(
     cond = {c.name: c for c in CONDITIONS}[condition]
     seeds = list(range(seed_start, seed_start + episodes))
     set_mode(policy, method)
+    if lead_steps is not None:
+        policy.config.lead_steps = lead_steps
     envs = [
         make_perturbed_env(obs_type="environment_state_agent_pos", max_episode_steps=300, **cond.env_kwargs())
         for _ in seeds

@@ -290,7 +290,7 @@ def test_gated_anchoring_cells_need_a_gate_and_are_reused_only_for_the_same_gate
     assert _fresh(cell, ident, [7], 300)
     assert not _fresh(cell, dict(ident, completion_gate_sha256="h"), [7], 300)
     assert _fresh(dict(cell, method="object_anchored"), dict(ident, completion_gate_sha256="h"), [7], 300)
-    config = SimpleNamespace(anchor_feature="observation.environment_state", n_action_steps=8)
+    config = SimpleNamespace(anchor_feature="observation.environment_state", n_action_steps=8, lead_steps=0)
     bare = SimpleNamespace(config=config, completion_gate=None, source=SimpleNamespace(max_length=16))
     assert runs("object_anchored", bare) and not runs("gated_anchored", bare)
     with pytest.raises(ValueError, match="completion gate"):
@@ -303,3 +303,31 @@ def test_gated_anchoring_cells_need_a_gate_and_are_reused_only_for_the_same_gate
     assert (config.execution, config.completion_gate) == ("object_anchored", False)
     set_mode(gated, "dcdp")
     assert (config.execution, config.completion_gate) == ("dcdp", True)
+
+
+def test_a_folders_scene_lead_runs_in_its_own_rows_only_and_keys_their_cells() -> None:
+    from types import SimpleNamespace
+
+    from lerobot_dcdp.benchmark.run import _fresh, set_mode
+
+    config = SimpleNamespace(anchor_feature="observation.environment_state", n_action_steps=8, lead_steps=8)
+    policy = SimpleNamespace(
+        config=config,
+        completion_gate=object(),
+        source=SimpleNamespace(max_length=16),
+        reset=lambda: None,
+        folder_lead_steps=8,  # as load_model records it
+    )
+    for method, lead in (("gated_anchored", 8), ("object_anchored", 0), ("open_loop", 0), ("dcdp", 8)):
+        set_mode(policy, method)
+        assert config.lead_steps == lead, method  # the plain rule and the baselines never lead
+    ident = {"corrector_sha256": "c", "completion_gate_sha256": "g", "base_weights_sha256": "b"}
+    led = dict(ident, lead_steps=8, lead_window=16)
+    for method in ("gated_anchored", "dcdp"):
+        cell = {"method": method, "identity": ident, "seeds": [7], "max_steps": 300, "episodes": 1}
+        assert _fresh(cell, ident, [7], 300)
+        assert not _fresh(cell, led, [7], 300)  # a cell run without the lead is not the led folder's
+        assert not _fresh(dict(cell, identity=led), dict(led, lead_window=8), [7], 300)
+        assert _fresh(dict(cell, identity=led), led, [7], 300)
+    baseline = {"method": "open_loop", "identity": ident, "seeds": [7], "max_steps": 300, "episodes": 1}
+    assert _fresh(baseline, led, [7], 300)  # a baseline never leads: reused whatever the folder's lead

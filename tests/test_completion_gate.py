@@ -119,6 +119,7 @@ def test_fit_cli_writes_a_corrector_whose_gate_knows_the_episode_ends(diffusion_
     main([*argv, "--steps", "1500", "--radius", "30", "--val-fraction", "0"])  # two episodes: fit both
     loaded = DCDPPolicy.from_pretrained(str(out))
     assert loaded.config.completion_gate and loaded.config.completion_radius == 30
+    assert loaded.config.lead_steps == policy.config.n_action_steps  # the scene lead by default
     assert json.loads((out / "config.json").read_text())["base_policy_path"] != str(diffusion_base)
     for name, tensor in policy.corrector.state_dict().items():  # the corrector itself unchanged
         torch.testing.assert_close(loaded.corrector.state_dict()[name], tensor)
@@ -132,9 +133,23 @@ def test_fit_cli_writes_a_corrector_whose_gate_knows_the_episode_ends(diffusion_
     with pytest.raises(SystemExit, match="exists"):
         main(argv)
     # by default the radius is a fraction of the demonstrations' own travel, recorded in the config
-    main([*argv[:-1], str(tmp_path / "gated_default"), "--steps", "10", "--val-fraction", "0"])
-    recorded = DCDPPolicy.from_pretrained(str(tmp_path / "gated_default")).config.completion_radius
-    assert recorded == pytest.approx(0.15 * travel_scale(points, episodes))
+    main(
+        [
+            *argv[:-1],
+            str(tmp_path / "gated_default"),
+            "--steps",
+            "10",
+            "--val-fraction",
+            "0",
+            "--lead-steps",
+            "0",
+        ]
+    )
+    recorded = DCDPPolicy.from_pretrained(str(tmp_path / "gated_default")).config
+    assert recorded.completion_radius == pytest.approx(0.15 * travel_scale(points, episodes))
+    assert recorded.lead_steps == 0
+    with pytest.raises(SystemExit, match="lead-steps must be >= 0"):
+        main([*argv[:-1], str(tmp_path / "bad"), "--lead-steps", "-1"])
     with pytest.raises(SystemExit, match="radius-fraction"):
         main([*argv[:-1], str(tmp_path / "bad"), "--radius-fraction", "1.5"])
 
@@ -192,6 +207,7 @@ def test_fit_cli_around_a_bare_base_writes_a_gated_anchoring_folder(
     cfg = loaded.config
     assert cfg.execution == "object_anchored" and cfg.anchor_feature == key
     assert cfg.n_action_steps == 8  # the base's own
+    assert (cfg.lead_steps, cfg.lead_window) == (8, 16)  # the scene lead: one executed chunk
     assert cfg.completion_gate and cfg.completion_radius == 30
     assert json.loads((out / "config.json").read_text())["base_policy_path"] != str(diffusion_base)
     assert (out / "policy_preprocessor.json").is_file() and (out / "policy_postprocessor.json").is_file()

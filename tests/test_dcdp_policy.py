@@ -198,7 +198,7 @@ def test_predict_action_chunk_is_a_query(kind, diffusion_base, act_base, demo_ro
     """It plans from the given observation and leaves the policy's state alone: interleaving it with
     select_action changes no action, and it equals the chunk a fresh policy starts from that observation."""
     base_dir = diffusion_base if kind == "diffusion" else act_base
-    policy = make_dcdp_policy(base_dir, demo_root).eval()
+    policy = make_dcdp_policy(base_dir, demo_root, anchor_feature="observation.environment_state").eval()
     obs = normalised_observations(policy, 2, 12)
     torch.manual_seed(0)
     policy.reset()
@@ -214,13 +214,15 @@ def test_predict_action_chunk_is_a_query(kind, diffusion_base, act_base, demo_ro
         mixed.append(policy.select_action(dict(o)))
     for a, b in zip(plain, mixed, strict=True):
         assert torch.equal(a, b)
-    policy.reset()
-    torch.manual_seed(1)
-    chunk = policy.predict_action_chunk(dict(obs[0]))
-    policy.reset()
-    torch.manual_seed(1)
-    first = policy.select_action(dict(obs[0]))
-    torch.testing.assert_close(chunk[:, 0], first)
+    for execution in ("dcdp", "object_anchored", "open_loop"):  # each mode's own first action
+        policy.config.execution = execution
+        policy.reset()
+        torch.manual_seed(1)
+        chunk = policy.predict_action_chunk(dict(obs[0]))
+        policy.reset()
+        torch.manual_seed(1)
+        first = policy.select_action(dict(obs[0]))
+        torch.testing.assert_close(chunk[:, 0], first)
 
 
 def test_corrector_weights_load_strictly(diffusion_base, demo_root, tmp_path) -> None:

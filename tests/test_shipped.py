@@ -54,6 +54,8 @@ def test_shipped_corrector_runs_every_mode_from_another_directory(corrector, tmp
         assert actions.shape == (10, 2, 2) and torch.isfinite(actions).all(), mode
         assert (actions > -50).all() and (actions < 600).all(), f"{mode}: actions leave the PushT arena"
         plans[mode] = actions
+    if saved.get("completion_gate"):  # the gated folders lead the scene by one executed chunk
+        assert policy.config.lead_steps == policy.config.n_action_steps
     if corrector.name.endswith("-anchored-gated"):
         # a bare base's gated anchoring (dcdp-fit-completion-gate --base): a gate, a corrector that never
         # trained (exactly the plan) ...

@@ -19,7 +19,8 @@ PLANNING_CLOCKS = ("wall", "steps")
 BASE_LOCATIONS = ("local", "remote")
 #: Execution modes that run one chunk for several ticks (the ones asynchronous planning applies to).
 CHUNK_MODES = ("dcdp", "open_loop", "object_anchored")
-#: the modes that move the base's plan, where a fitted completion gate leaves it as planned near completion
+#: the modes that move the base's plan: where a fitted completion gate leaves it as planned near completion
+#: and where the scene lead applies
 GATED_MODES = ("dcdp", "object_anchored")
 PLANNER_PRIORITIES = ("normal", "idle")
 MOTION_LABELS = ("observed", "added", "graded")
@@ -112,8 +113,11 @@ def check_correction(
     change_scale: float,
     compiled_kernel: str,
     completion_radius: float | None,
+    lead_steps: int,
+    lead_window: int,
 ) -> None:
-    """How the corrector corrects: its recipe, the anchor keypoints, the compiled path and the gate."""
+    """How the corrector corrects: its recipe, the anchor keypoints, the compiled path, the gate and the
+    scene lead."""
     check_choice("correction", correction, CORRECTIONS)
     if execution == "object_anchored" and not anchor_feature:
         raise ValueError(
@@ -128,6 +132,17 @@ def check_correction(
     if completion_radius is not None and not completion_radius > 0:
         raise ValueError(
             f"completion_radius must be > 0 (or None: no gate fitted), got {completion_radius!r}"
+        )
+    if not _is_int(lead_steps) or lead_steps < 0:
+        raise ValueError(f"lead_steps must be an int >= 0 (0: no scene lead), got {lead_steps!r}")
+    if not _is_int(lead_window) or lead_window < 2:
+        raise ValueError(
+            f"lead_window must be an int >= 2 (steps of the object's motion), got {lead_window!r}"
+        )
+    if lead_steps and not anchor_feature:
+        raise ValueError(
+            "lead_steps needs anchor_feature: the observation key holding the object's xy keypoints, whose "
+            "motion the scene is led by"
         )
 
 

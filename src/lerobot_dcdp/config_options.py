@@ -144,6 +144,16 @@ class CorrectionOptions:
             (``anchor_feature``) within this mean distance (raw units) of their place on the demonstration's
             last frame. Recorded by ``dcdp-fit-completion-gate`` (by default 0.15 of the object's typical
             travel in the demonstrations); ``None`` before a gate is fitted.
+        lead_steps: In ``dcdp`` and ``object_anchored``: plan and act in a scene moved this many control
+            steps of the object's own recent motion ahead -- the object's keypoints (``anchor_feature``) and
+            the robot's xy (``lead_state_feature``) moved together, the actions moved back -- so a base that
+            stops the object at its goal stops it upstream by the motion the world will add, and the world
+            carries it in (``scene_lead.py``). 0 (default): off. ``dcdp-fit-completion-gate`` sets it to the
+            folder's ``n_action_steps``.
+        lead_window: Steps over which the object's motion is the median of its keypoint centroid's per-step
+            displacement (the robot's pushes, a minority of the steps, drop out). No lead before a window.
+        lead_state_feature: Observation key whose first two dims are the robot's xy in the keypoints' frame
+            (the frame of the actions' first two dims), moved with the object by the lead.
     """
 
     correction: str = "residual"
@@ -156,6 +166,9 @@ class CorrectionOptions:
     compiled_kernel: str = "auto"
     completion_gate: bool = False
     completion_radius: float | None = None
+    lead_steps: int = 0
+    lead_window: int = 16
+    lead_state_feature: str = "observation.state"
 
 
 @dataclass

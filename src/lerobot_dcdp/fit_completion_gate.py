@@ -12,6 +12,10 @@ the keypoints' own units -- from the state features the policy reads, normalised
   the object's motion, left as planned where the task is nearly done. Its corrector is a fresh, minimal one
   (some kilobytes): exactly the base's plan (``--policy.execution=dcdp`` runs open loop).
 
+Both set the scene lead (``scene_lead.py``: plan in a scene moved ``lead_steps`` steps of the object's own
+motion ahead, so a drifting object is stopped upstream and carried into the goal) to the folder's
+``n_action_steps``; ``--lead-steps 0`` leaves it off (a folder without ``anchor_feature`` has none).
+
 The new folder appears only when complete and loads with ``--policy.path`` like any corrector.
 
     dcdp-fit-completion-gate --policy models/pusht-dcdp-state-teleop --repo-id local/pusht_expert \\
@@ -166,6 +170,25 @@ def gated_anchoring_policy(base: str, anchor_feature: str, dataset_meta, n_actio
     return make_policy(config, ds_meta=dataset_meta)
 
 
+def set_lead(policy, lead_steps: int | None) -> None:
+    """Set ``policy``'s scene lead: ``lead_steps``, or by default its ``n_action_steps`` where it has an
+    anchor feature (else 0).
+
+    Raises:
+        ValueError: a lead > 0 without an anchor feature, or without the robot's xy observation.
+    """
+    from lerobot_dcdp.scene_lead import check_lead_features
+
+    config = policy.config
+    if lead_steps is None:
+        lead_steps = config.n_action_steps if config.anchor_feature else 0
+    if lead_steps and not config.anchor_feature:
+        raise ValueError(f"{lead_steps} needs a folder with an anchor_feature (the object's keypoints)")
+    if lead_steps:
+        check_lead_features(config, {**(policy.base.config.input_features or {}), **config.input_features})
+    config.lead_steps = lead_steps
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     what = p.add_mutually_exclusive_group(required=True)
@@ -180,6 +203,12 @@ def main(argv: list[str] | None = None) -> None:
         "--n-action-steps",
         type=int,
         help="with --base: actions executed per chunk (default: the base's own n_action_steps, else 8)",
+    )
+    p.add_argument(
+        "--lead-steps",
+        type=int,
+        help="the scene lead in control steps (default: the folder's n_action_steps where it has an "
+        "anchor_feature; 0: off)",
     )
     p.add_argument("--repo-id", required=True, help="demonstrations (LeRobotDataset repo id)")
     p.add_argument("--root", required=True, help="the demonstrations' local folder")
@@ -207,6 +236,8 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit("--anchor-feature and --n-action-steps go with --base; a corrector (--policy) keeps its own")
     if a.n_action_steps is not None and a.n_action_steps < 1:
         sys.exit(f"--n-action-steps must be >= 1, got {a.n_action_steps}")
+    if a.lead_steps is not None and a.lead_steps < 0:
+        sys.exit(f"--lead-steps must be >= 0 (0: no scene lead), got {a.lead_steps}")
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     from lerobot_dcdp.modeling_dcdp import DCDPPolicy
@@ -231,6 +262,10 @@ def main(argv: list[str] | None = None) -> None:
             policy = gated_anchoring_policy(a.base, a.anchor_feature, dataset.meta, a.n_action_steps)
         except ValueError as e:
             sys.exit(f"--base {a.base} with the demonstrations {a.root}: {e}")
+    try:
+        set_lead(policy, a.lead_steps)
+    except ValueError as e:
+        sys.exit(f"--lead-steps: {e}")
     try:
         x, episodes, points = gate_data(policy, dataset)
         radius = a.radius if a.radius is not None else a.radius_fraction * travel_scale(points, episodes)
@@ -260,6 +295,7 @@ def main(argv: list[str] | None = None) -> None:
         f"(radius {radius:.4g}, near: {100 * stats['near_rate']:.1f} %); "
         f"held-out episodes: accuracy {stats['val_accuracy']:.3f}, "
         f"near recalled {stats['val_near_recall']:.3f}, far kept {stats['val_far_accuracy']:.3f}; "
+        f"scene lead {policy.config.lead_steps} steps; "
         f"wrote {out}" + (" (object_anchored with the gate; no corrector)" if source is None else "")
     )
 

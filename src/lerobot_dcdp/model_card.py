@@ -59,6 +59,11 @@ def make_model_card(
         if config.completion_gate and config.completion_radius is not None
         else ""
     )
+    if config.lead_steps:
+        gate += (
+            f"- scene lead: plans and acts in the scene moved {config.lead_steps} steps of the object's own "
+            f"motion ahead (median over {config.lead_window} steps), its actions moved back\n"
+        )
     text = f"""
 # DCDP corrector for a frozen `{config.base_policy_type}` policy
 

@@ -48,6 +48,7 @@ from lerobot_dcdp.execution_modes import make_execution_modes
 from lerobot_dcdp.kernel_runner import KernelRunner
 from lerobot_dcdp.observation_check import ObservationCheck
 from lerobot_dcdp.planning import AsyncPlanning, SyncPlanning, new_episode
+from lerobot_dcdp.scene_lead import SceneLead, check_lead_features, lead_applies
 
 #: module names of the corrector's parts in checkpoints saved before they moved under ``corrector.``
 LEGACY_PREFIXES = ("frame_encoder.", "extractor.", "encoder.", "residual.", "decoder.")
@@ -117,6 +118,9 @@ class DCDPPolicy(PreTrainedPolicy):
         self.check = ObservationCheck(
             config, {k: tuple(declared[k].shape) if k in declared else None for k in dict.fromkeys(needed)}
         )
+        if config.lead_steps:
+            check_lead_features(config, declared)
+        self.lead = SceneLead(config, self.normalizer)
         self.kernel = KernelRunner(self.corrector) if config.correction == "residual" else None
         self.modes = make_execution_modes(config, self.corrector, self.kernel, anchor)
         self._sync = SyncPlanning(config, self.source, anchor)
@@ -275,6 +279,7 @@ class DCDPPolicy(PreTrainedPolicy):
         self.source.reset()
         self._async.cancel()
         self.state: EpisodeState = new_episode(self.config)
+        self.lead.reset()
         self._held: Tensor | None = None  # ticks_per_step > 1: the action held, for _held_ticks more calls
         self._held_ticks = 0
 
@@ -305,11 +310,14 @@ class DCDPPolicy(PreTrainedPolicy):
             )
         mode = self.modes[self.config.execution]
         planning = self._async if self.config.planning == "async" else self._sync
+        shift = self.lead.observe(batch) if lead_applies(self.config) else None
+        if shift is not None:  # the whole step runs in the led scene; only its action is moved back
+            batch = self.lead.move(batch, shift)
         action = planning.act(self.state, batch, mode)
         if self.gate_applies:
             plan = self.state.chunk[:, self.state.last_step]
             action = gated_action(plan, action, self.completion_gate(batch))
-        return action
+        return action if shift is None else self.lead.move_action(action, -shift)
 
     @property
     def gate_applies(self) -> bool:
@@ -322,20 +330,27 @@ class DCDPPolicy(PreTrainedPolicy):
         every step decoded with the current F (no later observation exists yet: for ``residual`` nothing has
         changed since plan time, so this is the base's chunk plus the corrections a still world gets).
 
-        A query: the episode state and the base's observation queues are the same afterwards, so calling it
-        between ``select_action`` calls changes none of their actions. Its steps are planned steps (each lasts
-        ``ticks_per_step`` control ticks).
+        A query: the episode state, the scene lead's track and the base's observation queues are the same
+        afterwards, so calling it between ``select_action`` calls changes none of their actions. Its steps are
+        planned steps (each lasts ``ticks_per_step`` control ticks). With the scene lead, the chunk is planned
+        in the led scene and moved back, as ``select_action`` does.
         """
         self.check(batch, self.state)
+        shift = self.lead.observe(batch, record=False) if lead_applies(self.config) else None
+        if shift is not None:
+            batch = self.lead.move(batch, shift)
         state, queues = self.state.copy(), self.source.snapshot()
         try:
             prepared = self.source.observe(batch)
             self.corrector.push_frame(state, batch)
             chunk = self.source.chunk(prepared)[:, : self.config.n_action_steps]
-            corrected = self.corrector.query_chunk(state, chunk)
+            # the other chunk modes start a chunk as planned (nothing has moved since plan time)
+            corrected = self.corrector.query_chunk(state, chunk) if self.config.execution == "dcdp" else chunk
             if self.completion_gate is not None and self.config.completion_gate:
                 corrected = gated_action(chunk, corrected, self.completion_gate(batch))
-            return corrected
+            if shift is None:
+                return corrected
+            return torch.stack([self.lead.move_action(a, -shift) for a in corrected.unbind(1)], dim=1)
         finally:
             self.source.restore(queues)
 

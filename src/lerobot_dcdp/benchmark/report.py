@@ -508,12 +508,19 @@ def folder_line(ident: dict, cells: list[dict]) -> str:
     """What a model folder holds: a corrector, or (no DCDP cell, a gated-anchoring one) the bare base's
     completion gate around a corrector that never runs."""
     methods = {c["method"] for c in cells}
+    lead = (
+        f", scene lead {ident['lead_steps']} steps (window {ident['lead_window']}) in its DCDP and gated rows"
+        if ident.get("lead_steps")
+        else ""
+    )
     if "dcdp" not in methods and "gated_anchored" in methods:
         gate = ident.get("completion_gate_sha256", "?")[:12]
-        return f"completion gate `{shown_path(ident['corrector'])}` (sha256 `{gate}`; no corrector runs)"
+        return (
+            f"completion gate `{shown_path(ident['corrector'])}` (sha256 `{gate}`; no corrector runs){lead}"
+        )
     return (
         f"corrector `{shown_path(ident['corrector'])}` ({ident['corrector_params']:,} parameters, sha256 "
-        f"`{ident['corrector_sha256'][:12]}`)"
+        f"`{ident['corrector_sha256'][:12]}`){lead}"
     )
 
 

@@ -129,12 +129,17 @@ def load_model(corrector_dir: str):
     }
     if policy.completion_gate is not None:  # not part of corrector_sha256: its own identity
         identity["completion_gate_sha256"] = state_dict_sha256(policy.completion_gate.state_dict())
+    if policy.config.lead_steps:  # the folder's scene lead (its DCDP and gated rows run with it)
+        identity["lead_steps"] = policy.config.lead_steps
+        identity["lead_window"] = policy.config.lead_window
+    policy.folder_lead_steps = policy.config.lead_steps  # set_mode turns it off for the plain rule only
     return policy, pre, post, identity
 
 
 def set_mode(policy, method: str, delay: int = 0) -> None:
     """Run ``policy`` as the benchmark's ``method``: an execution mode, ``object_anchored`` always the plain
-    rule, ``gated_anchored`` the rule with the folder's completion gate."""
+    rule, ``gated_anchored`` the rule with the folder's completion gate; ``dcdp`` and ``gated_anchored``
+    with the folder's scene lead (``lead_steps``; the other modes never lead)."""
     limit = policy.source.max_length - policy.config.n_action_steps
     if not 0 <= delay <= limit:
         raise ValueError(f"inference_delay {delay} is out of range for this base: 0..{limit}")
@@ -142,6 +147,8 @@ def set_mode(policy, method: str, delay: int = 0) -> None:
         raise ValueError("gated_anchored needs a folder with a completion gate (dcdp-fit-completion-gate)")
     policy.config.execution = "object_anchored" if method == "gated_anchored" else method
     policy.config.completion_gate = policy.completion_gate is not None and method != "object_anchored"
+    folder_lead = getattr(policy, "folder_lead_steps", policy.config.lead_steps)
+    policy.config.lead_steps = folder_lead if method in ("dcdp", "gated_anchored") else 0
     policy.config.inference_delay = delay
     policy.config.ticks_per_step = 1  # lock-step: every env step is one planned step
     policy.reset()
@@ -504,20 +511,21 @@ def runs(method: str, policy) -> bool:
 
 
 def _fresh(cell: dict | None, ident: dict, seeds: list[int], max_steps: int) -> bool:
-    """A stored cell is reused only for the same corrector (DCDP) or gate (DCDP, gated anchoring), base,
-    seeds and step limit."""
+    """A stored cell is reused only for the same corrector (DCDP), gate and scene lead (DCDP, gated
+    anchoring), base, seeds and step limit."""
     if not cell:
         return False
     i = cell.get("identity", {})
     method = cell.get("method")
     # the baselines never call the corrector or the gate: for them only the base has to be the same
     same_corrector = method not in ("dcdp", None) or i.get("corrector_sha256") == ident["corrector_sha256"]
-    same_gate = method not in ("dcdp", "gated_anchored", None) or i.get(
-        "completion_gate_sha256"
-    ) == ident.get("completion_gate_sha256")
+    led = method in ("dcdp", "gated_anchored", None)
+    same_gate = not led or i.get("completion_gate_sha256") == ident.get("completion_gate_sha256")
+    same_lead = not led or all(i.get(k, 0) == ident.get(k, 0) for k in ("lead_steps", "lead_window"))
     return (
         same_corrector
         and same_gate
+        and same_lead
         and i.get("base_weights_sha256") == ident["base_weights_sha256"]
         and cell.get("seeds", [None])[0] == seeds[0]
         and cell.get("max_steps") == max_steps

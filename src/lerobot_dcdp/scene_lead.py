@@ -1,0 +1,113 @@
+"""The scene lead: plan and act in a scene moved ahead by the object's own recent motion.
+
+A base trained on still scenes brings the object to its goal and stops; when the world keeps moving the
+object (a drifting block, a conveyor), the object settles downstream of the goal by about the drift over one
+chunk, and the final alignment misses. With ``lead_steps`` L set, every observation the policy uses (the
+base's, the corrector's, the gate's) shows the object *and the robot* moved ``L`` steps of the object's
+recent motion ahead, and the actions are moved back by the same amount: the relative geometry of robot and
+object is the observed one, only where the scene stands against the fixed frame (the goal) changes. So the
+base aims the object upstream of the goal by the motion it will have over ``L`` steps, and the world carries
+it in (docs/ANALYSIS.md, "the scene lead").
+
+The object's motion is the median of its keypoint centroid's per-step displacement over the last
+``lead_window`` steps: the steps where the robot pushes the object are a minority of any window, so the
+median is the motion the world gives it. Until a window has been seen the lead is zero. The robot's xy are
+the first two dims of ``lead_state_feature``, in the keypoints' frame, as the actions' first two dims are
+(the frame ``object_anchored`` already assumes). The lead applies in the modes that move the plan
+(``dcdp``, ``object_anchored``: ``config_checks.GATED_MODES``); the baselines run the observed scene.
+"""
+
+from __future__ import annotations
+
+import torch
+from lerobot.utils.constants import ACTION
+from torch import Tensor
+
+from lerobot_dcdp.base_normalizer import BaseNormalizer
+from lerobot_dcdp.config_checks import GATED_MODES
+
+
+def median_motion(track: Tensor) -> Tensor:
+    """The median per-step displacement (B, 2) of a track of positions (W + 1, B, 2), per coordinate (pure).
+
+    Raises:
+        ValueError: The track is not (W + 1, B, 2) with W >= 1.
+    """
+    if track.ndim != 3 or track.shape[-1] != 2 or track.shape[0] < 2:
+        raise ValueError(f"track must be (W + 1, B, 2) positions with W >= 1, got shape {tuple(track.shape)}")
+    return torch.quantile(track.diff(dim=0), 0.5, dim=0)
+
+
+def moved_xy(x: Tensor, shift: Tensor, pairs: bool) -> Tensor:
+    """``x`` (B, D) in raw units with ``shift`` (B, 2) added to every xy pair (``pairs``) or to its first
+    two dims only (pure)."""
+    if pairs:
+        return (x.reshape(x.shape[0], -1, 2) + shift[:, None]).reshape(x.shape)
+    return torch.cat([x[:, :2] + shift, x[:, 2:]], dim=1)
+
+
+def check_lead_features(config, declared: dict) -> None:
+    """Refuse a ``lead_state_feature`` that no observation holds as a vector of >= 2 dims (``declared``:
+    the base's and the policy's input features)."""
+    key = config.lead_state_feature
+    if key not in declared:
+        raise ValueError(
+            f"lead_state_feature {key!r} is not among the observations {sorted(declared)}: name the one "
+            "whose first two dims are the robot's xy (--policy.lead_state_feature=...), or set lead_steps=0"
+        )
+    shape = tuple(declared[key].shape)
+    if len(shape) != 1 or shape[0] < 2:
+        raise ValueError(
+            f"lead_state_feature {key!r} must be a vector with the robot's xy first, got {shape}"
+        )
+
+
+def lead_applies(config) -> bool:
+    """Whether the scene lead runs: ``lead_steps`` > 0 in a mode that moves the plan (pure)."""
+    return config.lead_steps > 0 and config.execution in GATED_MODES
+
+
+class SceneLead:
+    """Tracks the object's motion over an episode and moves observations and actions by the lead.
+
+    Args:
+        config: The policy config (``lead_steps``, ``lead_window``, ``lead_state_feature``,
+            ``anchor_feature``).
+        normalizer: The base's normaliser: observations and actions are moved in raw units.
+    """
+
+    def __init__(self, config, normalizer: BaseNormalizer) -> None:
+        self.config = config
+        self.normalizer = normalizer
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the object's track (a new episode)."""
+        self._track: list[Tensor] = []
+
+    def observe(self, batch: dict[str, Tensor], record: bool = True) -> Tensor:
+        """The raw shift (B, 2) to lead the scene in ``batch`` by; ``record``: the object's centroid joins
+        its track (False: a query that leaves the track as it was)."""
+        cfg = self.config
+        points = self.normalizer(cfg.anchor_feature, batch[cfg.anchor_feature], inverse=True)
+        centroid = points.reshape(points.shape[0], -1, 2).mean(1)
+        track = self._track if self._track and self._track[-1].shape == centroid.shape else []
+        track = [*track[-cfg.lead_window :], centroid]  # a new batch of episodes starts a new track
+        if record:
+            self._track = track
+        if len(track) <= cfg.lead_window:
+            return torch.zeros_like(centroid)
+        return cfg.lead_steps * median_motion(torch.stack(track))
+
+    def move(self, batch: dict[str, Tensor], shift: Tensor) -> dict[str, Tensor]:
+        """``batch`` with the object's keypoints and the robot's xy moved by ``shift`` (raw units)."""
+        moved = dict(batch)
+        for key, pairs in ((self.config.anchor_feature, True), (self.config.lead_state_feature, False)):
+            raw = self.normalizer(key, batch[key], inverse=True)
+            moved[key] = self.normalizer(key, moved_xy(raw, shift.to(raw.dtype), pairs)).to(batch[key].dtype)
+        return moved
+
+    def move_action(self, action: Tensor, shift: Tensor) -> Tensor:
+        """The base-normalised ``action`` (B, A) with its xy moved by ``shift`` (raw units)."""
+        raw = self.normalizer(ACTION, action, inverse=True)
+        return self.normalizer(ACTION, moved_xy(raw, shift.to(raw.dtype), False)).to(action.dtype)

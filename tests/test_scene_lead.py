@@ -1,0 +1,158 @@
+"""The scene lead: the object's motion from its track, the led scene, and the policy acting in it."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from helpers import env_observations, make_dcdp_policy
+
+from lerobot_dcdp.configuration_dcdp import DCDPConfig
+from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+from lerobot_dcdp.scene_lead import lead_applies, median_motion, moved_xy
+
+KEY = "observation.environment_state"
+
+
+def test_median_motion_is_the_worlds_motion_with_the_pushes_left_out() -> None:
+    # two objects drifting (1, -0.5) and (0, 0) per step; on 3 of 8 steps the robot pushes them hard
+    steps = torch.tensor([[1.0, -0.5], [0.0, 0.0]]).repeat(8, 1, 1)
+    steps[[1, 4, 6]] += torch.tensor([[6.0, 9.0], [-7.0, 5.0]])
+    track = torch.cat([torch.zeros(1, 2, 2), steps.cumsum(0)])
+    torch.testing.assert_close(median_motion(track), torch.tensor([[1.0, -0.5], [0.0, 0.0]]))
+    with pytest.raises(ValueError, match="W \\+ 1, B, 2"):
+        median_motion(torch.zeros(1, 2, 2))
+    with pytest.raises(ValueError, match="W \\+ 1, B, 2"):
+        median_motion(torch.zeros(4, 2, 3))
+
+
+def test_moved_xy_moves_every_keypoint_or_the_robots_xy_only() -> None:
+    x = torch.arange(6.0).reshape(1, 6)
+    shift = torch.tensor([[10.0, 20.0]])
+    assert moved_xy(x, shift, pairs=True).tolist() == [[10.0, 21.0, 12.0, 23.0, 14.0, 25.0]]
+    assert moved_xy(x, shift, pairs=False).tolist() == [[10.0, 21.0, 2.0, 3.0, 4.0, 5.0]]
+
+
+def test_the_lead_is_checked_and_applies_in_the_modes_that_move_the_plan() -> None:
+    base = {"base_policy_path": "some/base", "device": "cpu", "push_to_hub": False}
+    with pytest.raises(ValueError, match="lead_steps must be an int >= 0"):
+        DCDPConfig(**base, lead_steps=-1)
+    with pytest.raises(ValueError, match="lead_window must be an int >= 2"):
+        DCDPConfig(**base, lead_window=1)
+    with pytest.raises(ValueError, match="lead_steps needs anchor_feature"):
+        DCDPConfig(**base, lead_steps=8)
+    config = DCDPConfig(**base, lead_steps=8, anchor_feature=KEY)
+    for execution, applies in (("dcdp", True), ("object_anchored", True), ("open_loop", False)):
+        config.execution = execution
+        assert lead_applies(config) is applies
+    config.lead_steps = 0
+    assert not lead_applies(config)
+
+
+def _moving(observations: list[dict], velocity: torch.Tensor) -> list[dict]:
+    """Raw observations whose block keypoints move ``velocity`` (2,) more each step."""
+    return [
+        {**o, KEY: (o[KEY].reshape(o[KEY].shape[0], -1, 2) + t * velocity).reshape(o[KEY].shape)}
+        for t, o in enumerate(observations)
+    ]
+
+
+def _actions(policy, observations: list[dict]) -> torch.Tensor:
+    pre, post = make_dcdp_pre_post_processors(policy.config)
+    torch.manual_seed(3)
+    policy.reset()
+    return torch.stack([post(policy.select_action(pre(dict(o)))) for o in observations])
+
+
+@pytest.mark.parametrize("execution", ["object_anchored", "dcdp"])
+def test_the_policy_acts_in_the_led_scene_and_moves_its_actions_back(diffusion_base, demo_root, execution):
+    window, lead, velocity = 4, 3, torch.tensor([1.5, -0.75])
+    policy = make_dcdp_policy(
+        diffusion_base,
+        demo_root,
+        correction="residual",
+        latent_dim=4,
+        n_action_steps=4,
+        anchor_feature=KEY,
+        execution=execution,
+        lead_window=window,
+    ).eval()
+    torch.manual_seed(1)
+    with torch.no_grad():  # a corrector that moves the plan
+        for p in policy.corrector.residual.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    observations = _moving(env_observations(2, 1) * 10, velocity)  # the world moves the block, nobody pushes
+    policy.config.lead_steps = lead
+    observe, shifts = policy.lead.observe, []
+    policy.lead.observe = lambda batch: shifts.append(observe(batch)) or shifts[-1]
+    led = _actions(policy, observations)
+    # the object's motion is read from its track: no lead until a window of it is seen, then lead x velocity
+    for t, shift in enumerate(shifts):
+        want = lead * velocity if t >= window else torch.zeros(2)
+        torch.testing.assert_close(shift, want.expand(2, 2), atol=1e-3, rtol=0)
+    # by hand: the lead off, the observations moved by the same shifts (block and robot), actions moved back
+    policy.config.lead_steps = 0
+    led_by_hand = [
+        {
+            "observation.state": o["observation.state"] + shift,
+            KEY: (o[KEY].reshape(2, -1, 2) + shift[:, None]).reshape(2, -1),
+        }
+        for o, shift in zip(observations, shifts, strict=True)
+    ]
+    by_hand = _actions(policy, led_by_hand)
+    policy.config.lead_steps = lead
+    torch.testing.assert_close(led, by_hand - torch.stack(shifts), atol=1e-3, rtol=0)
+    assert (led[window:] - _actions_without_lead(policy, observations)[window:]).abs().max() > 1.0
+    # the baselines never lead: open loop is the same with and without it
+    policy.config.execution = "open_loop"
+    torch.testing.assert_close(_actions(policy, observations), _actions_without_lead(policy, observations))
+
+
+def _actions_without_lead(policy, observations: list[dict]) -> torch.Tensor:
+    kept, policy.config.lead_steps = policy.config.lead_steps, 0
+    try:
+        return _actions(policy, observations)
+    finally:
+        policy.config.lead_steps = kept
+
+
+def test_a_lead_needs_the_robots_xy_among_the_observations(diffusion_base, demo_root) -> None:
+    with pytest.raises(ValueError, match="lead_state_feature 'observation.velocity' is not among"):
+        make_dcdp_policy(
+            diffusion_base,
+            demo_root,
+            correction="residual",
+            latent_dim=4,
+            anchor_feature=KEY,
+            lead_steps=4,
+            lead_state_feature="observation.velocity",
+        )
+
+
+def test_predict_action_chunk_plans_in_the_led_scene_and_leaves_the_track(diffusion_base, demo_root):
+    window, velocity = 4, torch.tensor([2.0, 1.0])
+    policy = make_dcdp_policy(
+        diffusion_base,
+        demo_root,
+        correction="residual",
+        n_action_steps=4,
+        anchor_feature=KEY,
+        lead_steps=4,
+        lead_window=window,
+    ).eval()
+    pre, _ = make_dcdp_pre_post_processors(policy.config)
+    observations = [pre(dict(o)) for o in _moving(env_observations(2, 1) * 9, velocity)]
+    torch.manual_seed(0)
+    policy.reset()
+    for o in observations[:8]:
+        policy.select_action(dict(o))
+    track = list(policy.lead._track)
+    torch.manual_seed(1)
+    chunk = policy.predict_action_chunk(dict(observations[8]))
+    assert all(torch.equal(a, b) for a, b in zip(track, policy.lead._track, strict=True))  # a query
+    torch.manual_seed(1)
+    action = policy.select_action(dict(observations[8]))  # step 8 starts a chunk: the same plan
+    torch.testing.assert_close(chunk[:, 0], action)
+    policy.config.lead_steps = 0
+    torch.manual_seed(1)
+    unled = policy.predict_action_chunk(dict(observations[8]))
+    assert (unled - chunk).abs().max() > 1e-2  # the lead moved the queried chunk
