@@ -10,7 +10,7 @@ the keypoints' own units -- from the state features the policy reads, normalised
 - ``--base <base> --anchor-feature <key>``: no corrector training. The folder wraps the bare base for the
   training-free ``object_anchored`` execution (its default there) with the gate: the plan carried along with
   the object's motion, left as planned where the task is nearly done. Its corrector is a fresh, minimal one
-  (some kilobytes): exactly the base's plan (``--policy.execution=dcdp`` runs open loop).
+  (some kilobytes): exactly the base's plan (``--policy.execution=dcdp`` runs open loop, in the led scene).
 
 Both set the scene lead (``scene_lead.py``: plan in a scene moved ``lead_steps`` steps of the object's own
 motion ahead, so a drifting object is stopped upstream and carried into the goal) to the folder's
