@@ -328,6 +328,11 @@ def test_a_folders_scene_lead_runs_in_its_own_rows_only_and_keys_their_cells() -
         assert _fresh(cell, ident, [7], 300)
         assert not _fresh(cell, led, [7], 300)  # a cell run without the lead is not the led folder's
         assert not _fresh(dict(cell, identity=led), dict(led, lead_window=8), [7], 300)
+        assert not _fresh(
+            dict(cell, identity=led), dict(led, lead_state_feature="observation.pose"), [7], 300
+        )
+        # a cell stored before the feature was recorded ran with the default one
+        assert _fresh(dict(cell, identity=led), dict(led, lead_state_feature="observation.state"), [7], 300)
         assert _fresh(dict(cell, identity=led), led, [7], 300)
     baseline = {"method": "open_loop", "identity": ident, "seeds": [7], "max_steps": 300, "episodes": 1}
     assert _fresh(baseline, led, [7], 300)  # a baseline never leads: reused whatever the folder's lead

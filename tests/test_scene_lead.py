@@ -44,6 +44,9 @@ def test_the_lead_is_checked_and_applies_in_the_modes_that_move_the_plan() -> No
     for execution, applies in (("dcdp", True), ("object_anchored", True), ("open_loop", False)):
         config.execution = execution
         assert lead_applies(config) is applies
+    config.base_location = "remote"  # a remote base plans from the robot's own observation: no lead
+    assert not lead_applies(config)
+    config.base_location = "local"
     config.lead_steps = 0
     assert not lead_applies(config)
 
@@ -116,7 +119,7 @@ def _actions_without_lead(policy, observations: list[dict]) -> torch.Tensor:
 
 
 def test_a_lead_needs_the_robots_xy_among_the_observations(diffusion_base, demo_root) -> None:
-    with pytest.raises(ValueError, match="lead_state_feature 'observation.velocity' is not among"):
+    with pytest.raises(ValueError, match="lead_state_feature 'observation.velocity' is not among the base's"):
         make_dcdp_policy(
             diffusion_base,
             demo_root,
@@ -156,3 +159,35 @@ def test_predict_action_chunk_plans_in_the_led_scene_and_leaves_the_track(diffus
     torch.manual_seed(1)
     unled = policy.predict_action_chunk(dict(observations[8]))
     assert (unled - chunk).abs().max() > 1e-2  # the lead moved the queried chunk
+
+
+def test_where_the_gate_keeps_the_plan_it_is_moved_back_by_the_current_lead(diffusion_base, demo_root):
+    """The documented choice: each action is moved back by the lead of its own step, also where the
+    completion gate leaves the plan as planned (so the lead's first window, filled mid-chunk, moves it)."""
+    window, lead, velocity = 5, 3, torch.tensor([1.5, -0.75])  # the lead starts at step 5: mid-chunk
+    policy = make_dcdp_policy(
+        diffusion_base,
+        demo_root,
+        correction="residual",
+        latent_dim=4,
+        n_action_steps=4,
+        anchor_feature=KEY,
+        execution="object_anchored",
+        completion_gate=True,
+        lead_steps=lead,
+        lead_window=window,
+    ).eval()
+    with torch.no_grad():  # a gate that says "nearly done" everywhere
+        last = policy.completion_gate.net[-1]
+        last.weight.zero_()
+        last.bias.fill_(30.0)
+    observe, shifts = policy.lead.observe, []
+    policy.lead.observe = lambda batch: shifts.append(observe(batch)) or shifts[-1]
+    pre, _ = make_dcdp_pre_post_processors(policy.config)
+    torch.manual_seed(3)
+    policy.reset()
+    for t, o in enumerate(_moving(env_observations(2, 1) * 10, velocity)):
+        action = policy.normalizer("action", policy.select_action(pre(dict(o))), inverse=True)
+        plan = policy.normalizer("action", policy.planned_chunk[:, policy.last_step], inverse=True)
+        torch.testing.assert_close(action, plan - shifts[t], atol=1e-3, rtol=0)
+        assert bool(shifts[t].abs().sum() > 0) is (t >= window)

@@ -144,16 +144,19 @@ class CorrectionOptions:
             (``anchor_feature``) within this mean distance (raw units) of their place on the demonstration's
             last frame. Recorded by ``dcdp-fit-completion-gate`` (by default 0.15 of the object's typical
             travel in the demonstrations); ``None`` before a gate is fitted.
-        lead_steps: In ``dcdp`` and ``object_anchored``: plan and act in a scene moved this many control
-            steps of the object's own recent motion ahead -- the object's keypoints (``anchor_feature``) and
-            the robot's xy (``lead_state_feature``) moved together, the actions moved back -- so a base that
+        lead_steps: In ``dcdp`` and ``object_anchored`` (the base in this process): plan and act in a scene
+            moved this many planned steps of the object's own recent motion ahead -- the object's keypoints
+            (``anchor_feature``) and the robot's xy (``lead_state_feature``) moved together, the actions
+            moved back by the current lead -- so a base that
             stops the object at its goal stops it upstream by the motion the world will add, and the world
             carries it in (``scene_lead.py``). 0 (default): off. ``dcdp-fit-completion-gate`` sets it to the
             folder's ``n_action_steps``.
-        lead_window: Steps over which the object's motion is the median of its keypoint centroid's per-step
-            displacement (the robot's pushes, a minority of the steps, drop out). No lead before a window.
+        lead_window: Planned steps over which the object's motion is the median of its keypoint centroid's
+            per-step displacement (the robot's pushes, a minority of the steps, drop out). No lead before a
+            window.
         lead_state_feature: Observation key whose first two dims are the robot's xy in the keypoints' frame
-            (the frame of the actions' first two dims), moved with the object by the lead.
+            (the frame of the actions' first two dims), moved with the object by the lead. The base must read
+            it and the anchor feature, and no image.
     """
 
     correction: str = "residual"

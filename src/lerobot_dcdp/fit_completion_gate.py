@@ -185,7 +185,7 @@ def set_lead(policy, lead_steps: int | None) -> None:
     if lead_steps and not config.anchor_feature:
         raise ValueError(f"{lead_steps} needs a folder with an anchor_feature (the object's keypoints)")
     if lead_steps:
-        check_lead_features(config, {**(policy.base.config.input_features or {}), **config.input_features})
+        check_lead_features(config, dict(policy.base.config.input_features or {}))
     config.lead_steps = lead_steps
 
 
@@ -207,7 +207,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument(
         "--lead-steps",
         type=int,
-        help="the scene lead in control steps (default: the folder's n_action_steps where it has an "
+        help="the scene lead in planned steps (default: the folder's n_action_steps where it has an "
         "anchor_feature; 0: off)",
     )
     p.add_argument("--repo-id", required=True, help="demonstrations (LeRobotDataset repo id)")

@@ -119,7 +119,7 @@ class DCDPPolicy(PreTrainedPolicy):
             config, {k: tuple(declared[k].shape) if k in declared else None for k in dict.fromkeys(needed)}
         )
         if config.lead_steps:
-            check_lead_features(config, declared)
+            check_lead_features(config, dict(base.config.input_features or {}))
         self.lead = SceneLead(config, self.normalizer)
         self.kernel = KernelRunner(self.corrector) if config.correction == "residual" else None
         self.modes = make_execution_modes(config, self.corrector, self.kernel, anchor)
@@ -326,9 +326,10 @@ class DCDPPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor]) -> Tensor:
-        """The corrected chunk (B, H, A) the policy would start from ``batch`` as its next observation,
-        every step decoded with the current F (no later observation exists yet: for ``residual`` nothing has
-        changed since plan time, so this is the base's chunk plus the corrections a still world gets).
+        """The chunk (B, H, A) the policy would start from ``batch`` as its next observation: in ``dcdp`` the
+        corrected chunk, every step decoded with the current F (no later observation exists yet: for
+        ``residual`` nothing has changed since plan time, so this is the base's chunk plus the corrections a
+        still world gets); in the other modes the base's chunk as planned.
 
         A query: the episode state, the scene lead's track and the base's observation queues are the same
         afterwards, so calling it between ``select_action`` calls changes none of their actions. Its steps are
@@ -344,7 +345,7 @@ class DCDPPolicy(PreTrainedPolicy):
             prepared = self.source.observe(batch)
             self.corrector.push_frame(state, batch)
             chunk = self.source.chunk(prepared)[:, : self.config.n_action_steps]
-            # the other chunk modes start a chunk as planned (nothing has moved since plan time)
+            # the other modes start from the chunk as planned (nothing has moved since plan time)
             corrected = self.corrector.query_chunk(state, chunk) if self.config.execution == "dcdp" else chunk
             if self.completion_gate is not None and self.config.completion_gate:
                 corrected = gated_action(chunk, corrected, self.completion_gate(batch))

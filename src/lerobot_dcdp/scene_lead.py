@@ -13,8 +13,11 @@ The object's motion is the median of its keypoint centroid's per-step displaceme
 ``lead_window`` steps: the steps where the robot pushes the object are a minority of any window, so the
 median is the motion the world gives it. Until a window has been seen the lead is zero. The robot's xy are
 the first two dims of ``lead_state_feature``, in the keypoints' frame, as the actions' first two dims are
-(the frame ``object_anchored`` already assumes). The lead applies in the modes that move the plan
-(``dcdp``, ``object_anchored``: ``config_checks.GATED_MODES``); the baselines run the observed scene.
+(the frame ``object_anchored`` already assumes); the base must read both, and no image. The lead applies in
+the modes that move the plan (``dcdp``, ``object_anchored``: ``config_checks.GATED_MODES``) with the base in
+this process; the baselines run the observed scene. Each step's action is moved back by the *current* lead, so
+where the plan runs as planned (the completion gate) it follows a change of the lead since plan time; the lead
+enters as one step of ``L`` x the motion when the first window is full.
 """
 
 from __future__ import annotations
@@ -46,25 +49,41 @@ def moved_xy(x: Tensor, shift: Tensor, pairs: bool) -> Tensor:
     return torch.cat([x[:, :2] + shift, x[:, 2:]], dim=1)
 
 
-def check_lead_features(config, declared: dict) -> None:
-    """Refuse a ``lead_state_feature`` that no observation holds as a vector of >= 2 dims (``declared``:
-    the base's and the policy's input features)."""
-    key = config.lead_state_feature
-    if key not in declared:
-        raise ValueError(
-            f"lead_state_feature {key!r} is not among the observations {sorted(declared)}: name the one "
-            "whose first two dims are the robot's xy (--policy.lead_state_feature=...), or set lead_steps=0"
-        )
-    shape = tuple(declared[key].shape)
+def check_lead_features(config, base_features: dict) -> None:
+    """Refuse a lead the base would not see: the base must read the object's keypoints (``anchor_feature``)
+    and ``lead_state_feature`` (a vector with the robot's xy first), and no image, which the lead cannot move.
+
+    Args:
+        config: The policy config.
+        base_features: The base's input features (``{key: PolicyFeature}``).
+    """
+    from lerobot.configs.types import FeatureType
+
+    for name, key in (
+        ("anchor_feature", config.anchor_feature),
+        ("lead_state_feature", config.lead_state_feature),
+    ):
+        if key not in base_features:
+            raise ValueError(
+                f"{name} {key!r} is not among the base's observations {sorted(base_features)}: the lead "
+                "moves what the base plans from (--policy.lead_state_feature names the one with the robot's "
+                "xy first), or set lead_steps=0"
+            )
+    shape = tuple(base_features[config.lead_state_feature].shape)
     if len(shape) != 1 or shape[0] < 2:
         raise ValueError(
-            f"lead_state_feature {key!r} must be a vector with the robot's xy first, got {shape}"
+            f"lead_state_feature {config.lead_state_feature!r} must be a vector with the robot's xy first, "
+            f"got {shape}"
         )
+    images = sorted(k for k, f in base_features.items() if f.type is FeatureType.VISUAL)
+    if images:
+        raise ValueError(f"the scene lead cannot move the images the base reads ({images}): set lead_steps=0")
 
 
 def lead_applies(config) -> bool:
-    """Whether the scene lead runs: ``lead_steps`` > 0 in a mode that moves the plan (pure)."""
-    return config.lead_steps > 0 and config.execution in GATED_MODES
+    """Whether the scene lead runs: ``lead_steps`` > 0 in a mode that moves the plan, with the base in this
+    process (a remote base plans from the robot's own observation, which the lead cannot move) (pure)."""
+    return config.lead_steps > 0 and config.execution in GATED_MODES and config.base_location == "local"
 
 
 class SceneLead:

@@ -132,6 +132,7 @@ def load_model(corrector_dir: str):
     if policy.config.lead_steps:  # the folder's scene lead (its DCDP and gated rows run with it)
         identity["lead_steps"] = policy.config.lead_steps
         identity["lead_window"] = policy.config.lead_window
+        identity["lead_state_feature"] = policy.config.lead_state_feature
     policy.folder_lead_steps = policy.config.lead_steps  # set_mode turns it off for the plain rule only
     return policy, pre, post, identity
 
@@ -147,8 +148,9 @@ def set_mode(policy, method: str, delay: int = 0) -> None:
         raise ValueError("gated_anchored needs a folder with a completion gate (dcdp-fit-completion-gate)")
     policy.config.execution = "object_anchored" if method == "gated_anchored" else method
     policy.config.completion_gate = policy.completion_gate is not None and method != "object_anchored"
-    folder_lead = getattr(policy, "folder_lead_steps", policy.config.lead_steps)
-    policy.config.lead_steps = folder_lead if method in ("dcdp", "gated_anchored") else 0
+    if not hasattr(policy, "folder_lead_steps"):  # load_model records it; else the first call does
+        policy.folder_lead_steps = policy.config.lead_steps
+    policy.config.lead_steps = policy.folder_lead_steps if method in ("dcdp", "gated_anchored") else 0
     policy.config.inference_delay = delay
     policy.config.ticks_per_step = 1  # lock-step: every env step is one planned step
     policy.reset()
@@ -510,6 +512,10 @@ def runs(method: str, policy) -> bool:
     return True
 
 
+#: a folder's scene lead in its identity, with the value a cell recorded without it ran with
+LEAD_IDENTITY = {"lead_steps": 0, "lead_window": 0, "lead_state_feature": "observation.state"}
+
+
 def _fresh(cell: dict | None, ident: dict, seeds: list[int], max_steps: int) -> bool:
     """A stored cell is reused only for the same corrector (DCDP), gate and scene lead (DCDP, gated
     anchoring), base, seeds and step limit."""
@@ -521,7 +527,7 @@ def _fresh(cell: dict | None, ident: dict, seeds: list[int], max_steps: int) -> 
     same_corrector = method not in ("dcdp", None) or i.get("corrector_sha256") == ident["corrector_sha256"]
     led = method in ("dcdp", "gated_anchored", None)
     same_gate = not led or i.get("completion_gate_sha256") == ident.get("completion_gate_sha256")
-    same_lead = not led or all(i.get(k, 0) == ident.get(k, 0) for k in ("lead_steps", "lead_window"))
+    same_lead = not led or all(i.get(k, d) == ident.get(k, d) for k, d in LEAD_IDENTITY.items())
     return (
         same_corrector
         and same_gate
