@@ -191,3 +191,37 @@ def test_where_the_gate_keeps_the_plan_it_is_moved_back_by_the_current_lead(diff
         plan = policy.normalizer("action", policy.planned_chunk[:, policy.last_step], inverse=True)
         torch.testing.assert_close(action, plan - shifts[t], atol=1e-3, rtol=0)
         assert bool(shifts[t].abs().sum() > 0) is (t >= window)
+
+
+def test_the_fit_leads_by_default_where_the_base_can_be_led_and_refuses_an_explicit_lead_it_cannot():
+    from types import SimpleNamespace
+
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    from lerobot_dcdp.fit_completion_gate import set_lead
+
+    state = PolicyFeature(type=FeatureType.STATE, shape=(2,))
+    keypoints = PolicyFeature(type=FeatureType.ENV, shape=(16,))
+    image = PolicyFeature(type=FeatureType.VISUAL, shape=(3, 96, 96))
+
+    def folder(base_inputs: dict, anchor: str | None = KEY) -> SimpleNamespace:
+        config = SimpleNamespace(
+            anchor_feature=anchor, n_action_steps=8, lead_steps=0, lead_state_feature="observation.state"
+        )
+        return SimpleNamespace(
+            config=config, base=SimpleNamespace(config=SimpleNamespace(input_features=base_inputs))
+        )
+
+    led = folder({"observation.state": state, KEY: keypoints})
+    assert set_lead(led, None) == "scene lead 8 steps" and led.config.lead_steps == 8
+    assert set_lead(led, 0) == "no scene lead" and led.config.lead_steps == 0
+    pixels = folder({"observation.state": state, KEY: keypoints, "observation.image": image})
+    assert set_lead(pixels, None).startswith("no scene lead") and pixels.config.lead_steps == 0
+    with pytest.raises(ValueError, match="images"):
+        set_lead(pixels, 4)
+    no_state = folder({KEY: keypoints})
+    assert set_lead(no_state, None).startswith("no scene lead (lead_state_feature")
+    no_anchor = folder({"observation.state": state}, anchor=None)
+    assert set_lead(no_anchor, None).startswith("no scene lead") and no_anchor.config.lead_steps == 0
+    with pytest.raises(ValueError, match="anchor_feature"):
+        set_lead(no_anchor, 4)

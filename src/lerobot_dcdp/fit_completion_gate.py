@@ -14,7 +14,8 @@ the keypoints' own units -- from the state features the policy reads, normalised
 
 Both set the scene lead (``scene_lead.py``: plan in a scene moved ``lead_steps`` steps of the object's own
 motion ahead, so a drifting object is stopped upstream and carried into the goal) to the folder's
-``n_action_steps``; ``--lead-steps 0`` leaves it off (a folder without ``anchor_feature`` has none).
+``n_action_steps``; ``--lead-steps 0`` leaves it off (a folder whose base cannot be led -- no
+``anchor_feature``, the robot's xy not among the base's inputs, or images -- gets none, and the fit says why).
 
 The new folder appears only when complete and loads with ``--policy.path`` like any corrector.
 
@@ -170,23 +171,30 @@ def gated_anchoring_policy(base: str, anchor_feature: str, dataset_meta, n_actio
     return make_policy(config, ds_meta=dataset_meta)
 
 
-def set_lead(policy, lead_steps: int | None) -> None:
-    """Set ``policy``'s scene lead: ``lead_steps``, or by default its ``n_action_steps`` where it has an
-    anchor feature (else 0).
+def set_lead(policy, lead_steps: int | None) -> str:
+    """Set ``policy``'s scene lead: ``lead_steps``, or by default its ``n_action_steps`` where the base can be
+    led (an anchor feature, the robot's xy among the base's inputs, no image; else 0). Returns what was set.
 
     Raises:
-        ValueError: a lead > 0 without an anchor feature, or without the robot's xy observation.
+        ValueError: an explicit lead > 0 the policy cannot run.
     """
     from lerobot_dcdp.scene_lead import check_lead_features
 
     config = policy.config
-    if lead_steps is None:
-        lead_steps = config.n_action_steps if config.anchor_feature else 0
-    if lead_steps and not config.anchor_feature:
-        raise ValueError(f"{lead_steps} needs a folder with an anchor_feature (the object's keypoints)")
-    if lead_steps:
-        check_lead_features(config, dict(policy.base.config.input_features or {}))
-    config.lead_steps = lead_steps
+    explicit = lead_steps is not None
+    steps = lead_steps if explicit else config.n_action_steps
+    try:
+        if steps and not config.anchor_feature:
+            raise ValueError("a scene lead needs a folder with an anchor_feature (the object's keypoints)")
+        if steps:
+            check_lead_features(config, dict(policy.base.config.input_features or {}))
+    except ValueError as e:
+        if explicit:
+            raise
+        config.lead_steps = 0
+        return f"no scene lead ({e})"
+    config.lead_steps = steps
+    return f"scene lead {steps} steps" if steps else "no scene lead"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -263,9 +271,9 @@ def main(argv: list[str] | None = None) -> None:
         except ValueError as e:
             sys.exit(f"--base {a.base} with the demonstrations {a.root}: {e}")
     try:
-        set_lead(policy, a.lead_steps)
+        lead = set_lead(policy, a.lead_steps)
     except ValueError as e:
-        sys.exit(f"--lead-steps: {e}")
+        sys.exit(f"--lead-steps {a.lead_steps}: {e}")
     try:
         x, episodes, points = gate_data(policy, dataset)
         radius = a.radius if a.radius is not None else a.radius_fraction * travel_scale(points, episodes)
@@ -295,7 +303,7 @@ def main(argv: list[str] | None = None) -> None:
         f"(radius {radius:.4g}, near: {100 * stats['near_rate']:.1f} %); "
         f"held-out episodes: accuracy {stats['val_accuracy']:.3f}, "
         f"near recalled {stats['val_near_recall']:.3f}, far kept {stats['val_far_accuracy']:.3f}; "
-        f"scene lead {policy.config.lead_steps} steps; "
+        f"{lead}; "
         f"wrote {out}" + (" (object_anchored with the gate; no corrector)" if source is None else "")
     )
 

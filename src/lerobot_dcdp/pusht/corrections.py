@@ -633,6 +633,7 @@ def record_corrections(
             raise ValueError(f"root={root} already exists; pass --force to overwrite it")
     drive = "open_loop" if execution == "teacher" else execution
     policy, pre, post = load_policy(policy_path, base_path, drive, anchor_feature)
+    policy.config.lead_steps = 0  # the plan column is the base's chunk for the scene as observed
     horizon = policy.config.n_action_steps
     if horizon + max_delay > policy.source.max_length:
         raise ValueError(
