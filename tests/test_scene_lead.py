@@ -59,6 +59,21 @@ def _moving(observations: list[dict], velocity: torch.Tensor) -> list[dict]:
     ]
 
 
+def _tiny_policy(diffusion_base, demo_root, **overrides):
+    """A tiny residual policy around the test base, 4-step chunks, anchored to the block keypoints."""
+    return make_dcdp_policy(
+        diffusion_base,
+        demo_root,
+        **{
+            "correction": "residual",
+            "latent_dim": 4,
+            "n_action_steps": 4,
+            "anchor_feature": KEY,
+            **overrides,
+        },
+    ).eval()
+
+
 def _actions(policy, observations: list[dict]) -> torch.Tensor:
     pre, post = make_dcdp_pre_post_processors(policy.config)
     torch.manual_seed(3)
@@ -69,16 +84,7 @@ def _actions(policy, observations: list[dict]) -> torch.Tensor:
 @pytest.mark.parametrize("execution", ["object_anchored", "dcdp"])
 def test_the_policy_acts_in_the_led_scene_and_moves_its_actions_back(diffusion_base, demo_root, execution):
     window, lead, velocity = 4, 3, torch.tensor([1.5, -0.75])
-    policy = make_dcdp_policy(
-        diffusion_base,
-        demo_root,
-        correction="residual",
-        latent_dim=4,
-        n_action_steps=4,
-        anchor_feature=KEY,
-        execution=execution,
-        lead_window=window,
-    ).eval()
+    policy = _tiny_policy(diffusion_base, demo_root, execution=execution, lead_window=window)
     torch.manual_seed(1)
     with torch.no_grad():  # a corrector that moves the plan
         for p in policy.corrector.residual.parameters():
@@ -120,28 +126,12 @@ def _actions_without_lead(policy, observations: list[dict]) -> torch.Tensor:
 
 def test_a_lead_needs_the_robots_xy_among_the_observations(diffusion_base, demo_root) -> None:
     with pytest.raises(ValueError, match="lead_state_feature 'observation.velocity' is not among the base's"):
-        make_dcdp_policy(
-            diffusion_base,
-            demo_root,
-            correction="residual",
-            latent_dim=4,
-            anchor_feature=KEY,
-            lead_steps=4,
-            lead_state_feature="observation.velocity",
-        )
+        _tiny_policy(diffusion_base, demo_root, lead_steps=4, lead_state_feature="observation.velocity")
 
 
 def test_predict_action_chunk_plans_in_the_led_scene_and_leaves_the_track(diffusion_base, demo_root):
     window, velocity = 4, torch.tensor([2.0, 1.0])
-    policy = make_dcdp_policy(
-        diffusion_base,
-        demo_root,
-        correction="residual",
-        n_action_steps=4,
-        anchor_feature=KEY,
-        lead_steps=4,
-        lead_window=window,
-    ).eval()
+    policy = _tiny_policy(diffusion_base, demo_root, lead_steps=4, lead_window=window)
     pre, _ = make_dcdp_pre_post_processors(policy.config)
     observations = [pre(dict(o)) for o in _moving(env_observations(2, 1) * 9, velocity)]
     torch.manual_seed(0)
@@ -165,18 +155,14 @@ def test_where_the_gate_keeps_the_plan_it_is_moved_back_by_the_current_lead(diff
     """The documented choice: each action is moved back by the lead of its own step, also where the
     completion gate leaves the plan as planned (so the lead's first window, filled mid-chunk, moves it)."""
     window, lead, velocity = 5, 3, torch.tensor([1.5, -0.75])  # the lead starts at step 5: mid-chunk
-    policy = make_dcdp_policy(
+    policy = _tiny_policy(
         diffusion_base,
         demo_root,
-        correction="residual",
-        latent_dim=4,
-        n_action_steps=4,
-        anchor_feature=KEY,
         execution="object_anchored",
         completion_gate=True,
         lead_steps=lead,
         lead_window=window,
-    ).eval()
+    )
     with torch.no_grad():  # a gate that says "nearly done" everywhere
         last = policy.completion_gate.net[-1]
         last.weight.zero_()
