@@ -53,28 +53,26 @@ import numpy as np
 import torch
 
 
-def horizon(args: argparse.Namespace, steps: float):
-    """``open_loop`` replanning every ``steps`` steps."""
+def _every(method: str, args: argparse.Namespace, steps: float):
+    """``method`` executing ``steps`` steps per chunk."""
     from near_misses import condition_rollout
 
     policy, _, act, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "open_loop", lead_steps=args.lead_steps
+        args.policy, args.condition, args.episodes, method, lead_steps=args.lead_steps
     )
     policy.config.n_action_steps = int(steps)
     policy.reset()
     return act, envs, seeds
+
+
+def horizon(args: argparse.Namespace, steps: float):
+    """``open_loop`` replanning every ``steps`` steps."""
+    return _every("open_loop", args, steps)
 
 
 def gated_horizon(args: argparse.Namespace, steps: float):
     """``gated_anchored`` (the folder's rule with its completion gate) executing ``steps`` steps per chunk."""
-    from near_misses import condition_rollout
-
-    policy, _, act, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "gated_anchored", lead_steps=args.lead_steps
-    )
-    policy.config.n_action_steps = int(steps)
-    policy.reset()
-    return act, envs, seeds
+    return _every("gated_anchored", args, steps)
 
 
 def extrapolate(args: argparse.Namespace, lead: float):

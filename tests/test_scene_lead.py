@@ -92,7 +92,7 @@ def test_the_policy_acts_in_the_led_scene_and_moves_its_actions_back(diffusion_b
     observations = _moving(env_observations(2, 1) * 10, velocity)  # the world moves the block, nobody pushes
     policy.config.lead_steps = lead
     observe, shifts = policy.lead.observe, []
-    policy.lead.observe = lambda batch: shifts.append(observe(batch)) or shifts[-1]
+    policy.lead.observe = lambda points, record=True: shifts.append(observe(points, record)) or shifts[-1]
     led = _actions(policy, observations)
     # the object's motion is read from its track: no lead until a window of it is seen, then lead x velocity
     for t, shift in enumerate(shifts):
@@ -168,7 +168,7 @@ def test_where_the_gate_keeps_the_plan_it_is_moved_back_by_the_current_lead(diff
         last.weight.zero_()
         last.bias.fill_(30.0)
     observe, shifts = policy.lead.observe, []
-    policy.lead.observe = lambda batch: shifts.append(observe(batch)) or shifts[-1]
+    policy.lead.observe = lambda points, record=True: shifts.append(observe(points, record)) or shifts[-1]
     pre, _ = make_dcdp_pre_post_processors(policy.config)
     torch.manual_seed(3)
     policy.reset()

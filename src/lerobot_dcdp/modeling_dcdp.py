@@ -310,14 +310,14 @@ class DCDPPolicy(PreTrainedPolicy):
             )
         mode = self.modes[self.config.execution]
         planning = self._async if self.config.planning == "async" else self._sync
-        shift = self.lead.observe(batch) if lead_applies(self.config) else None
-        if shift is not None:  # the whole step runs in the led scene; only its action is moved back
-            batch = self.lead.move(batch, shift)
+        led = lead_applies(self.config)
+        if led:  # the whole step runs in the led scene; only its action is moved back
+            batch, shift = self.lead.enter(batch)
         action = planning.act(self.state, batch, mode)
         if self.gate_applies:
             plan = self.state.chunk[:, self.state.last_step]
             action = gated_action(plan, action, self.completion_gate(batch))
-        return action if shift is None else self.lead.move_action(action, -shift)
+        return self.lead.move_action(action, -shift) if led else action
 
     @property
     def gate_applies(self) -> bool:
@@ -337,9 +337,9 @@ class DCDPPolicy(PreTrainedPolicy):
         in the led scene and moved back, as ``select_action`` does.
         """
         self.check(batch, self.state)
-        shift = self.lead.observe(batch, record=False) if lead_applies(self.config) else None
-        if shift is not None:
-            batch = self.lead.move(batch, shift)
+        led = lead_applies(self.config)
+        if led:
+            batch, shift = self.lead.enter(batch, record=False)
         state, queues = self.state.copy(), self.source.snapshot()
         try:
             prepared = self.source.observe(batch)
@@ -349,9 +349,7 @@ class DCDPPolicy(PreTrainedPolicy):
             corrected = self.corrector.query_chunk(state, chunk) if self.config.execution == "dcdp" else chunk
             if self.completion_gate is not None and self.config.completion_gate:
                 corrected = gated_action(chunk, corrected, self.completion_gate(batch))
-            if shift is None:
-                return corrected
-            return torch.stack([self.lead.move_action(a, -shift) for a in corrected.unbind(1)], dim=1)
+            return self.lead.move_action(corrected, -shift) if led else corrected
         finally:
             self.source.restore(queues)
 

@@ -104,12 +104,26 @@ class SceneLead:
         """Forget the object's track (a new episode)."""
         self._track: list[Tensor] = []
 
-    def observe(self, batch: dict[str, Tensor], record: bool = True) -> Tensor:
-        """The raw shift (B, 2) to lead the scene in ``batch`` by; ``record``: the object's centroid joins
-        its track (False: a query that leaves the track as it was)."""
+    def enter(self, batch: dict[str, Tensor], record: bool = True) -> tuple[dict[str, Tensor], Tensor]:
+        """``batch`` as the led scene -- the object's keypoints and the robot's xy moved by the lead -- and
+        that lead, the raw shift (B, 2); ``record``: the object joins its track (False: a query that leaves
+        the track as it was)."""
         cfg = self.config
         points = self.normalizer(cfg.anchor_feature, batch[cfg.anchor_feature], inverse=True)
-        centroid = points.reshape(points.shape[0], -1, 2).mean(1)
+        shift = self.observe(points.reshape(points.shape[0], -1, 2), record)
+        moved = dict(batch)
+        moved[cfg.anchor_feature] = self._normalized(cfg.anchor_feature, moved_xy(points, shift, True), batch)
+        state = self.normalizer(cfg.lead_state_feature, batch[cfg.lead_state_feature], inverse=True)
+        moved[cfg.lead_state_feature] = self._normalized(
+            cfg.lead_state_feature, moved_xy(state, shift.to(state.dtype), False), batch
+        )
+        return moved, shift
+
+    def observe(self, points: Tensor, record: bool = True) -> Tensor:
+        """The raw shift (B, 2) for the object's raw keypoints ``points`` (B, N, 2): ``lead_steps`` x its
+        median motion over the track (zero before a window); ``record``: the centroid joins the track."""
+        cfg = self.config
+        centroid = points.mean(1)
         track = self._track if self._track and self._track[-1].shape == centroid.shape else []
         track = [*track[-cfg.lead_window :], centroid]  # a new batch of episodes starts a new track
         if record:
@@ -118,15 +132,13 @@ class SceneLead:
             return torch.zeros_like(centroid)
         return cfg.lead_steps * median_motion(torch.stack(track))
 
-    def move(self, batch: dict[str, Tensor], shift: Tensor) -> dict[str, Tensor]:
-        """``batch`` with the object's keypoints and the robot's xy moved by ``shift`` (raw units)."""
-        moved = dict(batch)
-        for key, pairs in ((self.config.anchor_feature, True), (self.config.lead_state_feature, False)):
-            raw = self.normalizer(key, batch[key], inverse=True)
-            moved[key] = self.normalizer(key, moved_xy(raw, shift.to(raw.dtype), pairs)).to(batch[key].dtype)
-        return moved
+    def _normalized(self, key: str, raw: Tensor, batch: dict[str, Tensor]) -> Tensor:
+        return self.normalizer(key, raw).to(batch[key].dtype)
 
     def move_action(self, action: Tensor, shift: Tensor) -> Tensor:
-        """The base-normalised ``action`` (B, A) with its xy moved by ``shift`` (raw units)."""
+        """The base-normalised ``action`` (B, A) or chunk (B, H, A) with its xy moved by ``shift`` (B, 2),
+        raw units."""
         raw = self.normalizer(ACTION, action, inverse=True)
-        return self.normalizer(ACTION, moved_xy(raw, shift.to(raw.dtype), False)).to(action.dtype)
+        step = shift.to(raw.dtype).reshape(shift.shape[0], *[1] * (raw.ndim - 2), 2)
+        moved = torch.cat([raw[..., :2] + step, raw[..., 2:]], dim=-1)
+        return self.normalizer(ACTION, moved).to(action.dtype)
