@@ -210,6 +210,7 @@ def goal_lead(args: argparse.Namespace, lead: float):
 
     from lerobot_dcdp.benchmark.rollout import _stack_obs
     from lerobot_dcdp.benchmark.run import load_model
+    from lerobot_dcdp.scene_lead import repeated_motion
 
     # the lead by hand here: the folder's own off
     policy, post, _, envs, seeds = condition_rollout(
@@ -223,11 +224,15 @@ def goal_lead(args: argparse.Namespace, lead: float):
 
     def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
         stacked = _stack_obs(obs)
-        if args.velocity == "median":
+        if args.velocity in ("median", "repeated"):
             history.append(stacked["environment_state"].reshape(len(obs), -1, 2).mean(1))
             if len(history) > args.window:
                 steps = np.diff(np.stack(history[-args.window - 1 :]), axis=0)  # (W, B, 2)
-                velocity[:] = np.median(steps, axis=0)
+                if args.velocity == "median":
+                    velocity[:] = np.median(steps, axis=0)
+                else:  # the newest repeated displacement; where none, the last estimate holds
+                    motion, found = repeated_motion(torch.from_numpy(steps), args.tolerance, args.repeats)
+                    velocity[found.numpy()] = motion[found].numpy()
         shift = lead * velocity
         moved = {
             "agent_pos": stacked["agent_pos"] + shift,
@@ -298,11 +303,13 @@ def main() -> None:
     p.add_argument("--method", default="gated_anchored", help="goal_lead: the execution method")
     p.add_argument(
         "--velocity",
-        choices=["true", "median"],
+        choices=["true", "median", "repeated"],
         default="true",
         help="goal_lead: the env's drift (privileged) or the median per-step object motion",
     )
     p.add_argument("--window", type=int, default=16, help="goal_lead --velocity median: steps")
+    p.add_argument("--tolerance", type=float, default=0.05, help="goal_lead --velocity repeated")
+    p.add_argument("--repeats", type=int, default=3, help="goal_lead --velocity repeated")
     p.add_argument("--k", type=int, default=4, help="extrapolate: steps the object's velocity is taken over")
     a = p.parse_args()
     torch.set_num_threads(1)

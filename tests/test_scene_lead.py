@@ -2,27 +2,61 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import pytest
 import torch
 from helpers import env_observations, make_dcdp_policy
 
 from lerobot_dcdp.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
-from lerobot_dcdp.scene_lead import lead_applies, median_motion, moved_xy
+from lerobot_dcdp.scene_lead import SceneLead, lead_applies, moved_xy, repeated_motion
 
 KEY = "observation.environment_state"
 
 
-def test_median_motion_is_the_worlds_motion_with_the_pushes_left_out() -> None:
-    # two objects drifting (1, -0.5) and (0, 0) per step; on 3 of 8 steps the robot pushes them hard
-    steps = torch.tensor([[1.0, -0.5], [0.0, 0.0]]).repeat(8, 1, 1)
-    steps[[1, 4, 6]] += torch.tensor([[6.0, 9.0], [-7.0, 5.0]])
-    track = torch.cat([torch.zeros(1, 2, 2), steps.cumsum(0)])
-    torch.testing.assert_close(median_motion(track), torch.tensor([[1.0, -0.5], [0.0, 0.0]]))
-    with pytest.raises(ValueError, match="W \\+ 1, B, 2"):
-        median_motion(torch.zeros(1, 2, 2))
-    with pytest.raises(ValueError, match="W \\+ 1, B, 2"):
-        median_motion(torch.zeros(4, 2, 3))
+def test_repeated_motion_is_the_worlds_motion_also_where_pushes_are_the_majority() -> None:
+    # two objects drifting (1, -0.5) and (0, 0) per step; the robot pushes them on 10 of 16 steps (a
+    # sustained push: the per-coordinate median follows it), by a displacement that varies step to step
+    world = torch.tensor([[1.0, -0.5], [0.0, 0.0]])
+    steps = world.repeat(16, 1, 1)
+    pushed = torch.arange(3, 13)
+    steps[pushed] += torch.stack([torch.linspace(3.0, 4.0, 10), torch.linspace(2.0, 1.0, 10)], -1)[:, None]
+    assert not torch.allclose(steps.median(0).values, world)  # the median follows the push
+    motion, found = repeated_motion(steps, tolerance=0.05, repeats=3)
+    torch.testing.assert_close(motion, world)
+    assert found.tolist() == [True, True]
+    # a change of the world's motion: the newest repeated displacement wins once it repeats 3 times
+    turned = torch.cat([world.repeat(13, 1, 1), torch.tensor([[0.0, 1.0], [2.0, 0.0]]).repeat(3, 1, 1)])
+    torch.testing.assert_close(repeated_motion(turned, 0.05, 3)[0], torch.tensor([[0.0, 1.0], [2.0, 0.0]]))
+    torch.testing.assert_close(repeated_motion(turned, 0.05, 4)[0], world)  # 3 repeats are not 4
+    # within the tolerance (a fraction of the motion's length) a noisy repeat counts, beyond it not
+    noisy = torch.tensor([[[1.0, 0.0]], [[1.04, 0.0]], [[0.97, 0.0]]])
+    torch.testing.assert_close(
+        repeated_motion(noisy, 0.05, 3)[0], torch.tensor([[1.0033, 0.0]]), atol=1e-4, rtol=0
+    )
+    motion, found = repeated_motion(noisy, 0.02, 3)
+    assert not found.item() and motion.abs().sum() == 0  # nothing repeats: no motion found
+    for bad in (torch.zeros(0, 2, 2), torch.zeros(4, 2, 3)):
+        with pytest.raises(ValueError, match="W, B, 2"):
+            repeated_motion(bad, 0.05, 3)
+
+
+def test_the_motion_found_last_holds_through_a_window_of_pushes() -> None:
+    config = SimpleNamespace(lead_steps=8, lead_window=4, lead_tolerance=0.05, lead_repeats=3)
+    lead = SceneLead(config, normalizer=None)
+    drift, centroid = torch.tensor([[0.5, 0.0]]), torch.zeros(1, 2)
+    shifts = []
+    for step in range(12):  # 6 steps of drift, then 6 of a push that varies (no step repeats another)
+        centroid = centroid + drift + (step >= 6) * torch.tensor([[1.0 + 0.3 * step, 2.0]])
+        shifts.append(lead.observe(centroid[:, None].repeat(1, 3, 1)))
+    assert shifts[3].abs().sum() == 0  # before a window has been seen: no lead
+    for shift in shifts[4:]:  # the drift once found, and held while the push leaves nothing repeated
+        torch.testing.assert_close(shift, 8 * drift)
+    lead.observe(centroid[:, None].repeat(1, 3, 1) * 0, record=False)  # a query changes nothing
+    torch.testing.assert_close(lead.observe(centroid[:, None].repeat(1, 3, 1)), 8 * drift)
+    lead.reset()
+    assert lead.observe(centroid[:, None].repeat(1, 3, 1)).abs().sum() == 0
 
 
 def test_moved_xy_moves_every_keypoint_or_the_robots_xy_only() -> None:
@@ -38,6 +72,10 @@ def test_the_lead_is_checked_and_applies_in_the_modes_that_move_the_plan() -> No
         DCDPConfig(**base, lead_steps=-1)
     with pytest.raises(ValueError, match="lead_window must be an int >= 2"):
         DCDPConfig(**base, lead_window=1)
+    with pytest.raises(ValueError, match="lead_tolerance must be >= 0"):
+        DCDPConfig(**base, lead_tolerance=-0.1)
+    with pytest.raises(ValueError, match="lead_repeats must be an int in"):
+        DCDPConfig(**base, lead_repeats=17)
     with pytest.raises(ValueError, match="lead_steps needs anchor_feature"):
         DCDPConfig(**base, lead_steps=8)
     config = DCDPConfig(**base, lead_steps=8, anchor_feature=KEY)

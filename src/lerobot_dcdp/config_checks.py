@@ -115,6 +115,8 @@ def check_correction(
     completion_radius: float | None,
     lead_steps: int,
     lead_window: int,
+    lead_tolerance: float,
+    lead_repeats: int,
 ) -> None:
     """How the corrector corrects: its recipe, the anchor keypoints, the compiled path, the gate and the
     scene lead."""
@@ -138,6 +140,15 @@ def check_correction(
     if not _is_int(lead_window) or lead_window < 2:
         raise ValueError(
             f"lead_window must be an int >= 2 (steps of the object's motion), got {lead_window!r}"
+        )
+    if not lead_tolerance >= 0:
+        raise ValueError(
+            f"lead_tolerance must be >= 0 (a fraction of the motion's length), got {lead_tolerance!r}"
+        )
+    if not _is_int(lead_repeats) or not 2 <= lead_repeats <= lead_window:
+        raise ValueError(
+            f"lead_repeats must be an int in [2, lead_window={lead_window}] (steps that repeat the world's "
+            f"motion), got {lead_repeats!r}"
         )
     if lead_steps and not anchor_feature:
         raise ValueError(

@@ -151,9 +151,12 @@ class CorrectionOptions:
             stops the object at its goal stops it upstream by the motion the world will add, and the world
             carries it in (``scene_lead.py``). 0 (default): off. ``dcdp-fit-completion-gate`` sets it to the
             folder's ``n_action_steps``.
-        lead_window: Planned steps over which the object's motion is the median of its keypoint centroid's
-            per-step displacement (the robot's pushes, a minority of the steps, drop out). No lead before a
-            window.
+        lead_window: Planned steps of the object's keypoint centroid's per-step displacements in which the
+            world's motion is looked for. No lead before a window.
+        lead_tolerance: Two displacements are the same motion within this fraction of the newer one's length
+            (0.05). Raise it above the object tracker's per-step noise, relative to the motion you expect.
+        lead_repeats: The world's motion is the newest displacement that at least this many of the window's
+            steps repeat, itself included (3); the robot's pushes vary from step to step and drop out.
         lead_state_feature: Observation key whose first two dims are the robot's xy in the keypoints' frame
             (the frame of the actions' first two dims), moved with the object by the lead. The base must read
             it and the anchor feature, and no image.
@@ -171,6 +174,8 @@ class CorrectionOptions:
     completion_radius: float | None = None
     lead_steps: int = 0
     lead_window: int = 16
+    lead_tolerance: float = 0.05
+    lead_repeats: int = 3
     lead_state_feature: str = "observation.state"
 
 

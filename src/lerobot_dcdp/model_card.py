@@ -62,7 +62,8 @@ def make_model_card(
     if config.lead_steps:
         gate += (
             f"- scene lead: plans and acts in the scene moved {config.lead_steps} steps of the object's own "
-            f"motion ahead (median over {config.lead_window} steps), its actions moved back\n"
+            f"motion ahead (the newest displacement {config.lead_repeats} of the last {config.lead_window} "
+            "steps repeat), its actions moved back\n"
         )
     text = f"""
 # DCDP corrector for a frozen `{config.base_policy_type}` policy

@@ -9,9 +9,12 @@ object is the observed one, only where the scene stands against the fixed frame 
 base aims the object upstream of the goal by the motion it will have over ``L`` steps, and the world carries
 it in (docs/ANALYSIS.md, "the scene lead").
 
-The object's motion is the median of its keypoint centroid's per-step displacement over the last
-``lead_window`` steps: the steps where the robot pushes the object are a minority of any window, so the
-median is the motion the world gives it. Until a window has been seen the lead is zero. The robot's xy are
+The object's motion is the world's: of its keypoint centroid's per-step displacements over the last
+``lead_window`` steps, the newest one that at least ``lead_repeats`` of them repeat (within ``lead_tolerance``
+x its length). The world moves the object by the same step again and again; the robot's pushes move it by
+steps that vary, and in a sustained push they are the majority of a window, which a median would follow
+(docs/ANALYSIS.md, "the world's motion, not the push"). Where no step repeats the last motion found holds.
+Until a window has been seen the lead is zero. The robot's xy are
 the first two dims of ``lead_state_feature``, in the keypoints' frame, as the actions' first two dims are
 (the frame ``object_anchored`` already assumes); the base must read both, and no image. The lead applies in
 the modes that move the plan (``dcdp``, ``object_anchored``: ``config_checks.GATED_MODES``) with the base in
@@ -30,15 +33,30 @@ from lerobot_dcdp.base_normalizer import BaseNormalizer
 from lerobot_dcdp.config_checks import GATED_MODES
 
 
-def median_motion(track: Tensor) -> Tensor:
-    """The median per-step displacement (B, 2) of a track of positions (W + 1, B, 2), per coordinate (pure).
+def repeated_motion(steps: Tensor, tolerance: float, repeats: int) -> tuple[Tensor, Tensor]:
+    """The world's per-step motion of an object from its per-step displacements ``steps`` (W, B, 2) (pure).
+
+    The world moves the object by the same displacement step after step; the robot's pushes move it by
+    displacements that vary. So the motion is the newest displacement that at least ``repeats`` steps of the
+    window repeat -- within ``tolerance`` x its own length, itself included -- averaged over those steps.
+
+    Returns:
+        ``(motion, found)``: the motion (B, 2) and whether a repeated displacement was found (B,) (where not,
+        the motion is zero).
 
     Raises:
-        ValueError: The track is not (W + 1, B, 2) with W >= 1.
+        ValueError: ``steps`` is not (W, B, 2) with W >= 1.
     """
-    if track.ndim != 3 or track.shape[-1] != 2 or track.shape[0] < 2:
-        raise ValueError(f"track must be (W + 1, B, 2) positions with W >= 1, got shape {tuple(track.shape)}")
-    return torch.quantile(track.diff(dim=0), 0.5, dim=0)
+    if steps.ndim != 3 or steps.shape[-1] != 2 or steps.shape[0] < 1:
+        raise ValueError(f"steps must be (W, B, 2) displacements with W >= 1, got shape {tuple(steps.shape)}")
+    s = steps.transpose(0, 1)  # (B, W, 2)
+    near = torch.cdist(s, s) <= tolerance * s.norm(dim=-1, keepdim=True)  # [b, k, j]: j repeats k
+    valid = near.sum(-1) >= repeats  # (B, W)
+    newest = (valid * torch.arange(1, s.shape[1] + 1)).argmax(-1)  # the newest valid k (0 where none)
+    members = near[torch.arange(s.shape[0]), newest].to(s.dtype)  # (B, W)
+    found = valid.any(-1)
+    motion = (members[..., None] * s).sum(1) / members.sum(-1, keepdim=True).clamp_min(1)
+    return motion * found[:, None], found
 
 
 def moved_xy(x: Tensor, shift: Tensor, pairs: bool) -> Tensor:
@@ -90,8 +108,8 @@ class SceneLead:
     """Tracks the object's motion over an episode and moves observations and actions by the lead.
 
     Args:
-        config: The policy config (``lead_steps``, ``lead_window``, ``lead_state_feature``,
-            ``anchor_feature``).
+        config: The policy config (``lead_steps``, ``lead_window``, ``lead_tolerance``, ``lead_repeats``,
+            ``lead_state_feature``, ``anchor_feature``).
         normalizer: The base's normaliser: observations and actions are moved in raw units.
     """
 
@@ -103,6 +121,7 @@ class SceneLead:
     def reset(self) -> None:
         """Forget the object's track (a new episode)."""
         self._track: list[Tensor] = []
+        self._motion: Tensor | None = None  # the world's motion last found, per episode of the batch
 
     def enter(self, batch: dict[str, Tensor], record: bool = True) -> tuple[dict[str, Tensor], Tensor]:
         """``batch`` as the led scene -- the object's keypoints and the robot's xy moved by the lead -- and
@@ -120,17 +139,22 @@ class SceneLead:
         return moved, shift
 
     def observe(self, points: Tensor, record: bool = True) -> Tensor:
-        """The raw shift (B, 2) for the object's raw keypoints ``points`` (B, N, 2): ``lead_steps`` x its
-        median motion over the track (zero before a window); ``record``: the centroid joins the track."""
+        """The raw shift (B, 2) for the object's raw keypoints ``points`` (B, N, 2): ``lead_steps`` x the
+        world's motion over the track (zero before a window); ``record``: the centroid joins the track and the
+        motion found is kept (False: a query that leaves both as they were)."""
         cfg = self.config
         centroid = points.mean(1)
-        track = self._track if self._track and self._track[-1].shape == centroid.shape else []
-        track = [*track[-cfg.lead_window :], centroid]  # a new batch of episodes starts a new track
+        fresh = not (self._track and self._track[-1].shape == centroid.shape)  # a new batch of episodes
+        track = [*([] if fresh else self._track[-cfg.lead_window :]), centroid]
+        motion = torch.zeros_like(centroid) if fresh or self._motion is None else self._motion
+        if len(track) > cfg.lead_window:
+            found_motion, found = repeated_motion(
+                torch.stack(track).diff(dim=0), cfg.lead_tolerance, cfg.lead_repeats
+            )
+            motion = torch.where(found[:, None], found_motion, motion)
         if record:
-            self._track = track
-        if len(track) <= cfg.lead_window:
-            return torch.zeros_like(centroid)
-        return cfg.lead_steps * median_motion(torch.stack(track))
+            self._track, self._motion = track, motion
+        return cfg.lead_steps * motion
 
     def _normalized(self, key: str, raw: Tensor, batch: dict[str, Tensor]) -> Tensor:
         return self.normalizer(key, raw).to(batch[key].dtype)

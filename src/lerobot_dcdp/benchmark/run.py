@@ -132,6 +132,8 @@ def load_model(corrector_dir: str):
     if policy.config.lead_steps:  # the folder's scene lead (its DCDP and gated rows run with it)
         identity["lead_steps"] = policy.config.lead_steps
         identity["lead_window"] = policy.config.lead_window
+        identity["lead_tolerance"] = policy.config.lead_tolerance
+        identity["lead_repeats"] = policy.config.lead_repeats
         identity["lead_state_feature"] = policy.config.lead_state_feature
     policy.folder_lead_steps = policy.config.lead_steps  # set_mode turns it off for the plain rule only
     return policy, pre, post, identity
@@ -512,8 +514,15 @@ def runs(method: str, policy) -> bool:
     return True
 
 
-#: a folder's scene lead in its identity, with the value a cell recorded without it ran with
-LEAD_IDENTITY = {"lead_steps": 0, "lead_window": 0, "lead_state_feature": "observation.state"}
+#: a folder's scene lead in its identity, with the value a cell recorded without it ran with (a cell without
+#: a tolerance ran the median motion of the first scene lead)
+LEAD_IDENTITY = {
+    "lead_steps": 0,
+    "lead_window": 0,
+    "lead_state_feature": "observation.state",
+    "lead_tolerance": None,
+    "lead_repeats": None,
+}
 
 
 def _fresh(cell: dict | None, ident: dict, seeds: list[int], max_steps: int) -> bool:
