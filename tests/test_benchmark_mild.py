@@ -334,5 +334,10 @@ def test_a_folders_scene_lead_runs_in_its_own_rows_only_and_keys_their_cells() -
         # a cell stored before the feature was recorded ran with the default one
         assert _fresh(dict(cell, identity=led), dict(led, lead_state_feature="observation.state"), [7], 300)
         assert _fresh(dict(cell, identity=led), led, [7], 300)
+        # a cell stored by the first lead (a median, no tolerance recorded) is not the repeated motion's
+        repeated = dict(led, lead_tolerance=0.05, lead_repeats=3)
+        assert not _fresh(dict(cell, identity=led), repeated, [7], 300)
+        assert not _fresh(dict(cell, identity=repeated), dict(repeated, lead_repeats=4), [7], 300)
+        assert _fresh(dict(cell, identity=repeated), repeated, [7], 300)
     baseline = {"method": "open_loop", "identity": ident, "seeds": [7], "max_steps": 300, "episodes": 1}
     assert _fresh(baseline, led, [7], 300)  # a baseline never leads: reused whatever the folder's lead
