@@ -26,8 +26,10 @@ and success per setting:
   the object's motion ahead (agent and object together), its actions moved back: the base leaves the object
   that far upstream of the goal, for the drift to carry it in (a still-scene finish settles downstream of the
   goal under drift). ``--velocity true`` (privileged): the env's own drift; ``median``: the median per-step
-  motion of the object's keypoint centroid over ``--window`` steps (what ``scene_lead.py`` builds in). The
-  screen leads by hand; the folder's own ``lead_steps`` is turned off.
+  motion of the object's keypoint centroid over ``--window`` steps (the first scene lead); ``repeated``: the
+  newest per-step motion that ``--repeats`` steps of the window repeat within ``--tolerance`` x its length
+  (what ``scene_lead.py`` builds in, the last one found held). The screen leads by hand; the folder's own
+  ``lead_steps`` is turned off.
 - ``gate_anchor``: ``object_anchored`` (the training-free rule) with a corrector's completion gate applied at
   this strength (0: the plain rule; 1: the plan itself where the gate says "nearly done"): is the learned
   corrector, gated, better than its analytic teacher gated the same way?
@@ -305,9 +307,9 @@ def main() -> None:
         "--velocity",
         choices=["true", "median", "repeated"],
         default="true",
-        help="goal_lead: the env's drift (privileged) or the median per-step object motion",
+        help="goal_lead: the env's drift (privileged), the median or the repeated per-step object motion",
     )
-    p.add_argument("--window", type=int, default=16, help="goal_lead --velocity median: steps")
+    p.add_argument("--window", type=int, default=16, help="goal_lead --velocity median|repeated: steps")
     p.add_argument("--tolerance", type=float, default=0.05, help="goal_lead --velocity repeated")
     p.add_argument("--repeats", type=int, default=3, help="goal_lead --velocity repeated")
     p.add_argument("--k", type=int, default=4, help="extrapolate: steps the object's velocity is taken over")

@@ -308,7 +308,8 @@ def test_gated_anchoring_cells_need_a_gate_and_are_reused_only_for_the_same_gate
 def test_a_folders_scene_lead_runs_in_its_own_rows_only_and_keys_their_cells() -> None:
     from types import SimpleNamespace
 
-    from lerobot_dcdp.benchmark.run import _fresh, set_mode
+    from lerobot_dcdp.benchmark.run import _fresh, lead_identity, set_mode
+    from lerobot_dcdp.configuration_dcdp import DCDPConfig
 
     config = SimpleNamespace(anchor_feature="observation.environment_state", n_action_steps=8, lead_steps=8)
     policy = SimpleNamespace(
@@ -339,5 +340,23 @@ def test_a_folders_scene_lead_runs_in_its_own_rows_only_and_keys_their_cells() -
         assert not _fresh(dict(cell, identity=led), repeated, [7], 300)
         assert not _fresh(dict(cell, identity=repeated), dict(repeated, lead_repeats=4), [7], 300)
         assert _fresh(dict(cell, identity=repeated), repeated, [7], 300)
+        assert not _fresh(dict(cell, identity=repeated), dict(repeated, lead_tolerance=0.1), [7], 300)
+        assert not _fresh(dict(cell, identity=repeated), dict(repeated, lead_noise=0.5), [7], 300)
+        # a cell stored before the noise was recorded ran with none
+        assert _fresh(dict(cell, identity=repeated), dict(repeated, lead_noise=0.0), [7], 300)
     baseline = {"method": "open_loop", "identity": ident, "seeds": [7], "max_steps": 300, "episodes": 1}
     assert _fresh(baseline, led, [7], 300)  # a baseline never leads: reused whatever the folder's lead
+    # what load_model records: every key of the lead from the folder's config, nothing where it does not lead
+    folder = DCDPConfig(
+        base_policy_path="b", device="cpu", push_to_hub=False, anchor_feature="observation.environment_state"
+    )
+    assert lead_identity(folder) == {}
+    folder.lead_steps, folder.lead_tolerance = 8, 0.1
+    assert lead_identity(folder) == {
+        "lead_steps": 8,
+        "lead_window": 16,
+        "lead_state_feature": "observation.state",
+        "lead_tolerance": 0.1,
+        "lead_repeats": 3,
+        "lead_noise": 0.0,
+    }

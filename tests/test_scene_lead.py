@@ -37,13 +37,18 @@ def test_repeated_motion_is_the_worlds_motion_also_where_pushes_are_the_majority
     )
     motion, found = repeated_motion(noisy, 0.02, 3)
     assert not found.item() and motion.abs().sum() == 0  # nothing repeats: no motion found
+    # a still object seen by a jittering tracker: its steps repeat only within the noise
+    jitter = torch.tensor([[[0.01, -0.02]], [[-0.015, 0.01]], [[0.02, 0.005]]])
+    assert not repeated_motion(jitter, 0.05, 3)[1].item()
+    motion, found = repeated_motion(jitter, 0.05, 3, noise=0.05)
+    assert found.item() and motion.norm() < 0.01
     for bad in (torch.zeros(0, 2, 2), torch.zeros(4, 2, 3)):
         with pytest.raises(ValueError, match="W, B, 2"):
             repeated_motion(bad, 0.05, 3)
 
 
 def test_the_motion_found_last_holds_through_a_window_of_pushes() -> None:
-    config = SimpleNamespace(lead_steps=8, lead_window=4, lead_tolerance=0.05, lead_repeats=3)
+    config = SimpleNamespace(lead_steps=8, lead_window=4, lead_tolerance=0.05, lead_repeats=3, lead_noise=0.0)
     lead = SceneLead(config, normalizer=None)
     drift, centroid = torch.tensor([[0.5, 0.0]]), torch.zeros(1, 2)
     shifts = []
@@ -53,7 +58,12 @@ def test_the_motion_found_last_holds_through_a_window_of_pushes() -> None:
     assert shifts[3].abs().sum() == 0  # before a window has been seen: no lead
     for shift in shifts[4:]:  # the drift once found, and held while the push leaves nothing repeated
         torch.testing.assert_close(shift, 8 * drift)
-    lead.observe(centroid[:, None].repeat(1, 3, 1) * 0, record=False)  # a query changes nothing
+    track, motion = list(lead._track), lead._motion.clone()
+    # a query (record=False) answers with the held motion and leaves the track as it was
+    query = lead.observe((centroid + torch.tensor([[5.0, 5.0]]))[:, None].repeat(1, 3, 1), record=False)
+    torch.testing.assert_close(query, 8 * drift)  # its one step repeats nothing: the held motion
+    assert torch.equal(torch.stack(lead._track), torch.stack(track))
+    torch.testing.assert_close(lead._motion, motion)  # a query changes neither track nor motion
     torch.testing.assert_close(lead.observe(centroid[:, None].repeat(1, 3, 1)), 8 * drift)
     lead.reset()
     assert lead.observe(centroid[:, None].repeat(1, 3, 1)).abs().sum() == 0
@@ -74,8 +84,13 @@ def test_the_lead_is_checked_and_applies_in_the_modes_that_move_the_plan() -> No
         DCDPConfig(**base, lead_window=1)
     with pytest.raises(ValueError, match="lead_tolerance must be >= 0"):
         DCDPConfig(**base, lead_tolerance=-0.1)
-    with pytest.raises(ValueError, match="lead_repeats must be an int in"):
-        DCDPConfig(**base, lead_repeats=17)
+    with pytest.raises(ValueError, match="lead_repeats must be an int >= 2"):
+        DCDPConfig(**base, lead_repeats=1)
+    with pytest.raises(ValueError, match="lead_noise must be >= 0"):
+        DCDPConfig(**base, lead_noise=-1.0)
+    with pytest.raises(ValueError, match=r"lead_repeats \(17\) must be <= lead_window \(16\)"):
+        DCDPConfig(**base, lead_repeats=17, lead_steps=8, anchor_feature=KEY)
+    DCDPConfig(**base, lead_window=2)  # a folder without a lead never checks repeats against its window
     with pytest.raises(ValueError, match="lead_steps needs anchor_feature"):
         DCDPConfig(**base, lead_steps=8)
     config = DCDPConfig(**base, lead_steps=8, anchor_feature=KEY)

@@ -117,6 +117,7 @@ def check_correction(
     lead_window: int,
     lead_tolerance: float,
     lead_repeats: int,
+    lead_noise: float,
 ) -> None:
     """How the corrector corrects: its recipe, the anchor keypoints, the compiled path, the gate and the
     scene lead."""
@@ -145,10 +146,16 @@ def check_correction(
         raise ValueError(
             f"lead_tolerance must be >= 0 (a fraction of the motion's length), got {lead_tolerance!r}"
         )
-    if not _is_int(lead_repeats) or not 2 <= lead_repeats <= lead_window:
+    if not lead_noise >= 0:
+        raise ValueError(f"lead_noise must be >= 0 (the tracker's per-step noise), got {lead_noise!r}")
+    if not _is_int(lead_repeats) or lead_repeats < 2:
         raise ValueError(
-            f"lead_repeats must be an int in [2, lead_window={lead_window}] (steps that repeat the world's "
-            f"motion), got {lead_repeats!r}"
+            f"lead_repeats must be an int >= 2 (steps that repeat the world's motion), got {lead_repeats!r}"
+        )
+    if lead_steps and lead_repeats > lead_window:
+        raise ValueError(
+            f"lead_repeats ({lead_repeats}) must be <= lead_window ({lead_window}): the window holds the "
+            "steps that repeat the world's motion"
         )
     if lead_steps and not anchor_feature:
         raise ValueError(

@@ -153,10 +153,13 @@ class CorrectionOptions:
             folder's ``n_action_steps``.
         lead_window: Planned steps of the object's keypoint centroid's per-step displacements in which the
             world's motion is looked for. No lead before a window.
-        lead_tolerance: Two displacements are the same motion within this fraction of the newer one's length
-            (0.05). Raise it above the object tracker's per-step noise, relative to the motion you expect.
+        lead_tolerance: A step repeats a displacement within this fraction of that displacement's length
+            (0.05), plus ``lead_noise``.
         lead_repeats: The world's motion is the newest displacement that at least this many of the window's
             steps repeat, itself included (3); the robot's pushes vary from step to step and drop out.
+        lead_noise: The object tracker's per-step noise in the keypoints' units, added to every tolerance
+            (0: exact, as in simulation). With a noisy tracker set it, or a still object's jittering steps
+            never repeat and the motion found last holds.
         lead_state_feature: Observation key whose first two dims are the robot's xy in the keypoints' frame
             (the frame of the actions' first two dims), moved with the object by the lead. The base must read
             it and the anchor feature, and no image.
@@ -176,6 +179,7 @@ class CorrectionOptions:
     lead_window: int = 16
     lead_tolerance: float = 0.05
     lead_repeats: int = 3
+    lead_noise: float = 0.0
     lead_state_feature: str = "observation.state"
 
 

@@ -10,17 +10,20 @@ base aims the object upstream of the goal by the motion it will have over ``L`` 
 it in (docs/ANALYSIS.md, "the scene lead").
 
 The object's motion is the world's: of its keypoint centroid's per-step displacements over the last
-``lead_window`` steps, the newest one that at least ``lead_repeats`` of them repeat (within ``lead_tolerance``
-x its length). The world moves the object by the same step again and again; the robot's pushes move it by
-steps that vary, and in a sustained push they are the majority of a window, which a median would follow
-(docs/ANALYSIS.md, "the world's motion, not the push"). Where no step repeats the last motion found holds.
-Until a window has been seen the lead is zero. The robot's xy are
-the first two dims of ``lead_state_feature``, in the keypoints' frame, as the actions' first two dims are
-(the frame ``object_anchored`` already assumes); the base must read both, and no image. The lead applies in
-the modes that move the plan (``dcdp``, ``object_anchored``: ``config_checks.GATED_MODES``) with the base in
-this process; the baselines run the observed scene. Each step's action is moved back by the *current* lead, so
-where the plan runs as planned (the completion gate) it follows a change of the lead since plan time; the lead
-enters as one step of ``L`` x the motion when the first window is full.
+``lead_window`` steps, the newest one that at least ``lead_repeats`` of them repeat (within
+``lead_tolerance`` x its length, plus ``lead_noise``). The world moves the object by the same step again and
+again; the robot's pushes move it by steps that vary, and in a sustained push they are the majority of a
+window, which a median would follow (docs/ANALYSIS.md, "the world's motion, not the push"). Where no step
+repeats, the motion found last holds; a still object's steps are zero and repeat (with a jittering tracker,
+only within ``lead_noise``). Until a window has been seen the lead is zero.
+
+The robot's xy are the first two dims of ``lead_state_feature``, in the keypoints' frame, as the actions'
+first two dims are (the frame ``object_anchored`` already assumes); the base must read both, and no image.
+The lead applies in the modes that move the plan (``dcdp``, ``object_anchored``:
+``config_checks.GATED_MODES``) with the base in this process; the baselines run the observed scene. Each
+step's action is moved back by the *current* lead, so where the plan runs as planned (the completion gate) it
+follows a change of the lead since plan time; the lead enters as one step of ``L`` x the motion when the
+first window is full.
 """
 
 from __future__ import annotations
@@ -33,12 +36,15 @@ from lerobot_dcdp.base_normalizer import BaseNormalizer
 from lerobot_dcdp.config_checks import GATED_MODES
 
 
-def repeated_motion(steps: Tensor, tolerance: float, repeats: int) -> tuple[Tensor, Tensor]:
+def repeated_motion(
+    steps: Tensor, tolerance: float, repeats: int, noise: float = 0.0
+) -> tuple[Tensor, Tensor]:
     """The world's per-step motion of an object from its per-step displacements ``steps`` (W, B, 2) (pure).
 
     The world moves the object by the same displacement step after step; the robot's pushes move it by
     displacements that vary. So the motion is the newest displacement that at least ``repeats`` steps of the
-    window repeat -- within ``tolerance`` x its own length, itself included -- averaged over those steps.
+    window repeat -- within ``tolerance`` x its own length plus ``noise`` (the tracker's per-step noise, in
+    the steps' units), itself included -- averaged over those steps.
 
     Returns:
         ``(motion, found)``: the motion (B, 2) and whether a repeated displacement was found (B,) (where not,
@@ -50,10 +56,12 @@ def repeated_motion(steps: Tensor, tolerance: float, repeats: int) -> tuple[Tens
     if steps.ndim != 3 or steps.shape[-1] != 2 or steps.shape[0] < 1:
         raise ValueError(f"steps must be (W, B, 2) displacements with W >= 1, got shape {tuple(steps.shape)}")
     s = steps.transpose(0, 1)  # (B, W, 2)
-    near = torch.cdist(s, s) <= tolerance * s.norm(dim=-1, keepdim=True)  # [b, k, j]: j repeats k
+    gap = (s[:, :, None] - s[:, None]).norm(dim=-1)  # [b, k, j]: how far step j is from step k
+    near = gap <= tolerance * s.norm(dim=-1, keepdim=True) + noise  # j repeats k, within k's tolerance
     valid = near.sum(-1) >= repeats  # (B, W)
-    newest = (valid * torch.arange(1, s.shape[1] + 1)).argmax(-1)  # the newest valid k (0 where none)
-    members = near[torch.arange(s.shape[0]), newest].to(s.dtype)  # (B, W)
+    order = torch.arange(1, s.shape[1] + 1, device=s.device)
+    newest = (valid * order).argmax(-1)  # the newest valid k (0 where none)
+    members = near[torch.arange(s.shape[0], device=s.device), newest].to(s.dtype)  # (B, W)
     found = valid.any(-1)
     motion = (members[..., None] * s).sum(1) / members.sum(-1, keepdim=True).clamp_min(1)
     return motion * found[:, None], found
@@ -109,7 +117,7 @@ class SceneLead:
 
     Args:
         config: The policy config (``lead_steps``, ``lead_window``, ``lead_tolerance``, ``lead_repeats``,
-            ``lead_state_feature``, ``anchor_feature``).
+            ``lead_noise``, ``lead_state_feature``, ``anchor_feature``).
         normalizer: The base's normaliser: observations and actions are moved in raw units.
     """
 
@@ -149,7 +157,7 @@ class SceneLead:
         motion = torch.zeros_like(centroid) if fresh or self._motion is None else self._motion
         if len(track) > cfg.lead_window:
             found_motion, found = repeated_motion(
-                torch.stack(track).diff(dim=0), cfg.lead_tolerance, cfg.lead_repeats
+                torch.stack(track).diff(dim=0), cfg.lead_tolerance, cfg.lead_repeats, cfg.lead_noise
             )
             motion = torch.where(found[:, None], found_motion, motion)
         if record:

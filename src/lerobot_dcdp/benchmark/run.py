@@ -129,12 +129,7 @@ def load_model(corrector_dir: str):
     }
     if policy.completion_gate is not None:  # not part of corrector_sha256: its own identity
         identity["completion_gate_sha256"] = state_dict_sha256(policy.completion_gate.state_dict())
-    if policy.config.lead_steps:  # the folder's scene lead (its DCDP and gated rows run with it)
-        identity["lead_steps"] = policy.config.lead_steps
-        identity["lead_window"] = policy.config.lead_window
-        identity["lead_tolerance"] = policy.config.lead_tolerance
-        identity["lead_repeats"] = policy.config.lead_repeats
-        identity["lead_state_feature"] = policy.config.lead_state_feature
+    identity.update(lead_identity(policy.config))
     policy.folder_lead_steps = policy.config.lead_steps  # set_mode turns it off for the plain rule only
     return policy, pre, post, identity
 
@@ -515,14 +510,21 @@ def runs(method: str, policy) -> bool:
 
 
 #: a folder's scene lead in its identity, with the value a cell recorded without it ran with (a cell without
-#: a tolerance ran the median motion of the first scene lead)
+#: a tolerance ran the median motion of the first scene lead; one without a noise, none)
 LEAD_IDENTITY = {
     "lead_steps": 0,
     "lead_window": 0,
     "lead_state_feature": "observation.state",
     "lead_tolerance": None,
     "lead_repeats": None,
+    "lead_noise": 0.0,
 }
+
+
+def lead_identity(config) -> dict:
+    """A folder's scene lead as its cells record it (its DCDP and gated rows run with it; pure): every
+    ``LEAD_IDENTITY`` key from ``config``, or nothing where it does not lead."""
+    return {key: getattr(config, key) for key in LEAD_IDENTITY} if config.lead_steps else {}
 
 
 def _fresh(cell: dict | None, ident: dict, seeds: list[int], max_steps: int) -> bool:
