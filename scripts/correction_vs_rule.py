@@ -6,7 +6,8 @@ Runs one benchmark condition (same envs, seeds and seeding as ``near_misses.py``
 steps the rule moves the planned action by more than ``--min-px``, how much of the rule's change the corrector
 makes: the least-squares slope of the corrector's change on the rule's (1: the rule's size; < 1: it shrinks
 the correction), the share of the rule's change it leaves out (residual RMS / rule RMS), and both per
-step of the chunk. Raw action units (PushT: px), before the gate and the lead's move back.
+step of the chunk. Raw action units (PushT: px), before the gate and the lead's move back. ``--blend w``
+executes ``(1 - w)`` x the corrector's action + ``w`` x the rule's (is their mean better than either?).
 
 Usage: .venv/bin/python scripts/correction_vs_rule.py --policy models/pusht-dcdp-act-state-demos-late-gated
            [--condition constant_2.0] [--episodes 50] [--min-px 1]
@@ -31,6 +32,12 @@ def main() -> None:
     p.add_argument("--condition", default="constant_2.0")
     p.add_argument("--episodes", type=int, default=50)
     p.add_argument("--min-px", type=float, default=1.0)
+    p.add_argument(
+        "--blend",
+        type=float,
+        default=0.0,
+        help="execute (1 - blend) x the corrector's action + blend x the rule's (0: the corrector)",
+    )
     a = p.parse_args()
     torch.set_num_threads(1)
     policy, _, act, envs, seeds = condition_rollout(a.policy, a.condition, a.episodes, "dcdp")
@@ -51,7 +58,7 @@ def main() -> None:
 
         c, r = (to_raw(out) - to_raw(plan))[:, :2], (to_raw(rule) - to_raw(plan))[:, :2]
         rows.extend((step, *ci, *ri) for ci, ri in zip(c.tolist(), r.tolist(), strict=True))
-        return out
+        return out if not a.blend else (1 - a.blend) * out + a.blend * rule
 
     corrected.act = both
     out = run_lockstep(envs, seeds, act, 300)
@@ -61,7 +68,8 @@ def main() -> None:
     step, c, r = d[:, 0], d[:, 1:3], d[:, 3:5]
     big = np.linalg.norm(r, axis=1) > a.min_px
     print(
-        f"{a.policy} {a.condition}: success {100 * np.mean(out.successes):.0f} %, "
+        f"{a.policy} {a.condition} blend {a.blend:g}: score {np.mean(out.max_rewards):.3f}, "
+        f"success {100 * np.mean(out.successes):.0f} %, "
         f"{big.sum()} of {len(d)} steps the rule moves > {a.min_px:g}"
     )
 
