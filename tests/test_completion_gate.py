@@ -197,6 +197,7 @@ def test_fit_cli_around_a_bare_base_writes_a_gated_anchoring_folder(
     from lerobot_dcdp.fit_completion_gate import gate_data, main
     from lerobot_dcdp.modeling_dcdp import DCDPPolicy
     from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+    from lerobot_dcdp.scene_lead import tracker_noise
 
     key = "observation.environment_state"
     data = ["--repo-id", "local/test", "--root", str(demo_root)]
@@ -217,6 +218,7 @@ def test_fit_cli_around_a_bare_base_writes_a_gated_anchoring_folder(
     with torch.no_grad():
         guess = loaded.completion_gate.logit(x) > 0
     assert guess[near].float().mean() > 0.8 and (~guess[~near]).float().mean() > 0.8
+    assert cfg.lead_noise == tracker_noise(points, episodes)  # the lead's noise from the same frames
     # completion_gate=false (e.g. --policy.completion_gate=false) loads the folder and runs the gate off
     off = cfg.__class__.from_pretrained(str(out))
     off.completion_gate = False

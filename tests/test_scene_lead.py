@@ -10,7 +10,7 @@ from helpers import env_observations, make_dcdp_policy
 
 from lerobot_dcdp.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
-from lerobot_dcdp.scene_lead import SceneLead, lead_applies, moved_xy, repeated_motion
+from lerobot_dcdp.scene_lead import SceneLead, lead_applies, moved_xy, repeated_motion, tracker_noise
 
 KEY = "observation.environment_state"
 
@@ -45,6 +45,28 @@ def test_repeated_motion_is_the_worlds_motion_also_where_pushes_are_the_majority
     for bad in (torch.zeros(0, 2, 2), torch.zeros(4, 2, 3)):
         with pytest.raises(ValueError, match="W, B, 2"):
             repeated_motion(bad, 0.05, 3)
+
+
+def test_tracker_noise_is_the_jitter_of_the_demonstrations_still_steps() -> None:
+    # two episodes of an object pushed on every other stretch of 10 steps and still between, tracked exactly
+    gen = torch.Generator().manual_seed(0)
+    f64 = torch.float64
+    pushes = (torch.arange(200) // 10 % 2 == 0).to(f64)[:, None] * torch.tensor([3.0, 1.0], dtype=f64)
+    exact = pushes.cumsum(0)[:, None] + torch.tensor([[0.0, 0.0], [4.0, 2.0]], dtype=f64)  # (T, 2 points, 2)
+    episodes = (torch.arange(200) >= 100).long()
+    assert tracker_noise(exact, episodes) == 0.0  # a simulator's still steps are exact
+    # the same track seen with jitter (sd 0.2 per coordinate): the noise covers two still steps' gap
+    jittered = exact + 0.2 * torch.randn(200, 1, 2, generator=gen, dtype=f64)
+    noise = tracker_noise(jittered, episodes)
+    assert 0.3 < noise < 2.0  # about 4.6 x 1.07 x 0.2 = 0.98
+    still = jittered.mean(1)[10:20].diff(dim=0)[:, None].float()  # a still stretch's steps (9, 1, 2)
+    assert not repeated_motion(still, 0.05, 3)[1].item()  # without the noise its jitter never repeats
+    motion, found = repeated_motion(still, 0.05, 3, noise=noise)
+    assert found.item() and motion.norm() < 0.3  # with it: a still object, nearly no motion
+    with pytest.raises(ValueError, match="points must be"):
+        tracker_noise(exact[:, 0], episodes)
+    with pytest.raises(ValueError, match="no episode has two frames"):
+        tracker_noise(exact[:2], torch.tensor([0, 1]))
 
 
 def test_the_motion_found_last_holds_through_a_window_of_pushes() -> None:

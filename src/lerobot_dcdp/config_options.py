@@ -158,8 +158,9 @@ class CorrectionOptions:
         lead_repeats: The world's motion is the newest displacement that at least this many of the window's
             steps repeat, itself included (3); the robot's pushes vary from step to step and drop out.
         lead_noise: The object tracker's per-step noise in the keypoints' units, added to every tolerance
-            (0: exact, as in simulation). With a noisy tracker set it, or a still object's jittering steps
-            never repeat and the motion found last holds.
+            (0: exact, as in simulation). ``dcdp-fit-completion-gate`` measures it on the demonstrations'
+            still steps; without it a still object's jittering steps never repeat and the motion found last
+            holds.
         lead_state_feature: Observation key whose first two dims are the robot's xy in the keypoints' frame
             (the frame of the actions' first two dims), moved with the object by the lead. The base must read
             it and the anchor feature, and no image.

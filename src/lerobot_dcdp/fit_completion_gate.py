@@ -16,6 +16,8 @@ Both set the scene lead (``scene_lead.py``: plan in a scene moved ``lead_steps``
 motion ahead, so a drifting object is stopped upstream and carried into the goal) to the folder's
 ``n_action_steps``; ``--lead-steps 0`` leaves it off (a folder whose base cannot be led -- no
 ``anchor_feature``, the robot's xy not among the base's inputs, or images -- gets none, and the fit says why).
+With a lead, ``lead_noise`` is the object tracker's per-step jitter, measured on the demonstrations' still
+steps (``scene_lead.tracker_noise``; 0 in simulation).
 
 The new folder appears only when complete and loads with ``--policy.path`` like any corrector.
 
@@ -40,6 +42,7 @@ from torch import Tensor
 from lerobot_dcdp.atomic_dataset import staged_dir
 from lerobot_dcdp.base_policy import portable_base_reference
 from lerobot_dcdp.completion_gate import CompletionGate, completion_labels, travel_scale
+from lerobot_dcdp.scene_lead import tracker_noise
 
 
 def gate_data(policy, dataset) -> tuple[Tensor, Tensor, Tensor]:
@@ -278,6 +281,9 @@ def main(argv: list[str] | None = None) -> None:
         x, episodes, points = gate_data(policy, dataset)
         radius = a.radius if a.radius is not None else a.radius_fraction * travel_scale(points, episodes)
         policy.config.completion_radius = radius
+        if policy.config.lead_steps:  # the lead's tolerance for the tracker's jitter, from the same frames
+            policy.config.lead_noise = tracker_noise(points, episodes)
+            lead += f" (tracker noise {policy.config.lead_noise:.3g})"
         near = completion_labels(points, episodes, radius)
         stats = fit_gate(policy.completion_gate, x, near, episodes, a.steps, a.lr, a.val_fraction, a.seed)
     except ValueError as e:

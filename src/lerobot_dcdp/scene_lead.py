@@ -67,6 +67,39 @@ def repeated_motion(
     return motion * found[:, None], found
 
 
+#: for Gaussian jitter of the tracked positions, the gap between two still steps' displacements exceeds this
+#: multiple of their 25th-percentile length on 5 % of the pairs
+STILL_GAP_FACTOR = 4.6
+
+
+def tracker_noise(points: Tensor, episode_index: Tensor) -> float:
+    """The object tracker's per-step noise in demonstrations, as ``lead_noise`` takes it (pure).
+
+    In demonstrations the object stands still on many steps (the robot moves elsewhere); there its keypoint
+    centroid's per-step displacements are the tracker's jitter alone. The stillest quarter of all steps
+    measures it: ``STILL_GAP_FACTOR`` x the 25th percentile of the displacements' lengths covers the gap
+    between two still steps in 95 % of pairs (Gaussian jitter). A simulator's exact still steps give 0.
+
+    Args:
+        points: Object keypoints (T, N, 2) in raw units, frames in dataset order.
+        episode_index: Episode of each frame (T,); an episode's frames are contiguous.
+
+    Raises:
+        ValueError: Shapes that do not match, or no episode with two frames.
+    """
+    if points.ndim != 3 or points.shape[-1] != 2 or episode_index.shape != points.shape[:1]:
+        raise ValueError(
+            f"points must be (T, N, 2) with episode_index (T,), got {tuple(points.shape)} and "
+            f"{tuple(episode_index.shape)}"
+        )
+    centroid = points.double().mean(1)
+    same = episode_index[1:] == episode_index[:-1]
+    if not same.any():
+        raise ValueError("no episode has two frames: no per-step displacement to measure the noise on")
+    steps = (centroid[1:] - centroid[:-1])[same].norm(dim=-1)
+    return STILL_GAP_FACTOR * float(steps.quantile(0.25))
+
+
 def moved_xy(x: Tensor, shift: Tensor, pairs: bool) -> Tensor:
     """``x`` (B, D) in raw units with ``shift`` (B, 2) added to every xy pair (``pairs``) or to its first
     two dims only (pure)."""
