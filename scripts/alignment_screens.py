@@ -30,6 +30,9 @@ and success per setting:
   newest per-step motion that ``--repeats`` steps of the window repeat within ``--tolerance`` x its length
   (what ``scene_lead.py`` builds in, the last one found held). The screen leads by hand; the folder's own
   ``lead_steps`` is turned off.
+- ``tracker_jitter``: ``--method`` with the folder's own lead where the object's keypoints are seen with
+  Gaussian jitter (``--jitter`` px, a tracker's noise), the lead's ``lead_noise`` = the setting: does the lead
+  survive a noisy tracker, and does the noise floor matter?
 - ``gate_anchor``: ``object_anchored`` (the training-free rule) with a corrector's completion gate applied at
   this strength (0: the plain rule; 1: the plan itself where the gate says "nearly done"): is the learned
   corrector, gated, better than its analytic teacher gated the same way?
@@ -42,6 +45,7 @@ Usage: .venv/bin/python scripts/alignment_screens.py --screen horizon --settings
        --screen drift_lead --settings 0 1 2 --condition constant_2.0 --episodes 50
        --screen gated_horizon --settings 8 12 16 --policy models/pusht-act-state-anchored-gated
        --screen goal_lead --settings 0 8 --velocity median --window 16 [--method gated_anchored]
+       --screen tracker_jitter --settings 0 2.5 --jitter 0.5 --method gated_anchored
        Screens run a folder with its own scene lead unless ``--lead-steps`` says otherwise (the screens
        recorded before the lead existed: ``--lead-steps 0``).
 """
@@ -251,6 +255,27 @@ def goal_lead(args: argparse.Namespace, lead: float):
     return act, envs, seeds, on_step
 
 
+def tracker_jitter(args: argparse.Namespace, noise: float):
+    """``--method`` with the folder's own lead, the object's keypoints seen with Gaussian jitter
+    (``--jitter`` px per coordinate per step, seeded) and the lead's ``lead_noise`` set to ``noise``."""
+    from near_misses import condition_rollout
+
+    policy, _, run, envs, seeds = condition_rollout(
+        args.policy, args.condition, args.episodes, args.method, lead_steps=args.lead_steps
+    )
+    policy.config.lead_noise = noise
+    rng = np.random.default_rng(0)
+
+    def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
+        seen = []
+        for o in obs:
+            jitter = rng.normal(0.0, args.jitter, size=o["environment_state"].shape)
+            seen.append({**o, "environment_state": (o["environment_state"] + jitter).astype(np.float32)})
+        return run(seen, active)
+
+    return act, envs, seeds
+
+
 def gate_anchor(args: argparse.Namespace, strength: float):
     """``object_anchored`` with the corrector's completion gate at ``strength``."""
     from near_misses import condition_rollout
@@ -285,6 +310,7 @@ SCREENS = {
     "drift_lead": drift_lead,
     "gated_horizon": gated_horizon,
     "goal_lead": goal_lead,
+    "tracker_jitter": tracker_jitter,
 }
 
 
@@ -310,6 +336,7 @@ def main() -> None:
         help="goal_lead: the env's drift (privileged), the median or the repeated per-step object motion",
     )
     p.add_argument("--window", type=int, default=16, help="goal_lead --velocity median|repeated: steps")
+    p.add_argument("--jitter", type=float, default=0.5, help="tracker_jitter: px per coordinate per step")
     p.add_argument("--tolerance", type=float, default=0.05, help="goal_lead --velocity repeated")
     p.add_argument("--repeats", type=int, default=3, help="goal_lead --velocity repeated")
     p.add_argument("--k", type=int, default=4, help="extrapolate: steps the object's velocity is taken over")
