@@ -9,8 +9,9 @@ loop by default), the paired seeds where the first succeeds and the method fails
 region, and how late. ``--out`` writes the per-episode records as JSON.
 
 Usage: .venv/bin/python scripts/goal_region_trace.py [--policy models/pusht-dcdp-state-demos]
-           [--condition constant_0.5] [--episodes 100] [--methods open_loop object_anchored dcdp]
-           [--radius 20] [--angle 20] [--out runs/screens/goal_region.json]
+           [--condition constant_0.5 | constant:0.6:300] [--episodes 100] [--seed-start 100000]
+           [--methods open_loop object_anchored dcdp] [--radius 20] [--angle 20]
+           [--out runs/screens/goal_region.json]
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ def trace(args: argparse.Namespace, method: str) -> list[dict]:
 
     from lerobot_dcdp.lockstep import run_lockstep
 
-    rollout = condition_rollout(args.policy, args.condition, args.episodes, method)
+    rollout = condition_rollout(args.policy, args.condition, args.episodes, method, args.seed_start)
     policy, post, corrected, envs, seeds = rollout
     n = len(seeds)
     near = np.zeros(n, dtype=bool)
@@ -95,6 +96,7 @@ def main() -> None:
     p.add_argument("--policy", default="models/pusht-dcdp-state-demos")
     p.add_argument("--condition", default="constant_0.5")
     p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--seed-start", type=int, default=100_000)
     p.add_argument("--methods", nargs="+", default=["open_loop", "object_anchored", "dcdp"])
     p.add_argument("--radius", type=float, default=20.0)
     p.add_argument("--angle", type=float, default=20.0)

@@ -29,8 +29,9 @@ def condition_rollout(
 ) -> tuple:
     """The benchmark's envs for one condition and the corrector in one execution mode, seeded as the benchmark
     seeds a batch; ``lead_steps`` overrides the folder's scene lead (None: the folder's, as the benchmark runs
-    it). Returns ``(policy, post, act, envs, seeds)``: ``post`` the corrector's post-processor, ``act`` the
-    policy call ``run_lockstep`` takes."""
+    it). ``condition``: a benchmark condition's name, or ``unseen_check.py``'s ``constant:<px>:<deg>`` /
+    ``random:<px>``. Returns ``(policy, post, act, envs, seeds)``: ``post`` the corrector's post-processor,
+    ``act`` the policy call ``run_lockstep`` takes."""
     from lerobot.envs.utils import preprocess_observation
 
     from lerobot_dcdp.benchmark.rollout import CONDITIONS, _stack_obs
@@ -38,13 +39,20 @@ def condition_rollout(
     from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
 
     policy, pre, post, _ = load_model(policy_path)
-    cond = {c.name: c for c in CONDITIONS}[condition]
+    if ":" in condition:  # a drift no table uses, in unseen_check.py's form
+        from unseen_check import parse_condition
+
+        cond, extra = parse_condition(condition)
+    else:
+        cond, extra = {c.name: c for c in CONDITIONS}[condition], {}
     seeds = list(range(seed_start, seed_start + episodes))
     set_mode(policy, method)
     if lead_steps is not None:
         policy.config.lead_steps = lead_steps
     envs = [
-        make_perturbed_env(obs_type="environment_state_agent_pos", max_episode_steps=300, **cond.env_kwargs())
+        make_perturbed_env(
+            obs_type="environment_state_agent_pos", max_episode_steps=300, **{**cond.env_kwargs(), **extra}
+        )
         for _ in seeds
     ]
     torch.manual_seed(seeds[0])  # as the benchmark seeds a batch
