@@ -276,6 +276,30 @@ def tracker_jitter(args: argparse.Namespace, noise: float):
     return act, envs, seeds
 
 
+def still_world(args: argparse.Namespace, on: float):
+    """``--method`` (an anchoring) with the folder's own lead where, with ``on``, the rule leaves the plan as
+    planned once the lead has found the world still (a repeated zero step): the carry with the object's whole
+    motion only while the world moves it (the demonstrations label's rule, run time)."""
+    from near_misses import condition_rollout
+
+    policy, _, act, envs, seeds = condition_rollout(
+        args.policy, args.condition, args.episodes, args.method, lead_steps=args.lead_steps
+    )
+    anchored = policy.modes["object_anchored"]
+    rule = anchored.act
+
+    def carried_while_moving(state, step, batch):
+        carried, plan = rule(state, step, batch), state.chunk[:, step]
+        motion = policy.lead._motion
+        if not on or motion is None or motion.shape[0] != plan.shape[0]:
+            return carried
+        still = (motion == 0).all(-1) & (len(policy.lead._track) > policy.config.lead_window)
+        return torch.where(still[:, None], plan, carried)
+
+    anchored.act = carried_while_moving
+    return act, envs, seeds
+
+
 def gate_anchor(args: argparse.Namespace, strength: float):
     """``object_anchored`` with the corrector's completion gate at ``strength``."""
     from near_misses import condition_rollout
@@ -311,6 +335,7 @@ SCREENS = {
     "gated_horizon": gated_horizon,
     "goal_lead": goal_lead,
     "tracker_jitter": tracker_jitter,
+    "still_world": still_world,
 }
 
 
