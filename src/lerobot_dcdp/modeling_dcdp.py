@@ -11,15 +11,13 @@
   ensemble, object anchoring) over one ``EpisodeState`` (``episode_state.py``);
 - the planning (``planning.py``: synchronous, with an optional simulated ``inference_delay``, or
   asynchronous on a worker thread, ``planner.py``);
-- the compiled per-step kernel behind ``KernelRunner`` (``kernel_runner.py``).
+- the compiled per-step kernel behind ``KernelRunner`` (``kernel_runner.py``);
+- the folder and the Hub: loading with the base checked, saving, pushing (``policy_folder.py``).
 
 Stage 1 is ``forward`` (the corrector's loss; the base is not called); stage 2 is ``select_action``.
 """
 
 from __future__ import annotations
-
-import os
-from pathlib import Path
 
 import torch
 from lerobot.configs.types import FeatureType
@@ -33,13 +31,10 @@ from lerobot_dcdp.base_policy import (
     check_against_base,
     load_base_policy,
     load_base_stats,
-    portable_base_reference,
-    resolve_base_reference,
 )
 from lerobot_dcdp.chunk_sources import ChunkSource, make_chunk_source
 from lerobot_dcdp.completion_gate import build_gate, gate_applies, gated_action
 from lerobot_dcdp.configuration_dcdp import DCDPConfig
-from lerobot_dcdp.correction import state_dict_sha256
 from lerobot_dcdp.corrector import Corrector
 from lerobot_dcdp.corrector_reconstruct import ReconstructCorrector
 from lerobot_dcdp.corrector_residual import ResidualCorrector
@@ -48,17 +43,16 @@ from lerobot_dcdp.execution_modes import make_execution_modes
 from lerobot_dcdp.kernel_runner import KernelRunner
 from lerobot_dcdp.observation_check import ObservationCheck
 from lerobot_dcdp.planning import AsyncPlanning, SyncPlanning, new_episode
+from lerobot_dcdp.policy_folder import BaseMismatchError, CorrectorFolder
 from lerobot_dcdp.scene_lead import SceneLead, check_lead_features, lead_applies
+
+__all__ = ["BaseMismatchError", "DCDPPolicy"]  # the mismatch error is raised on load (policy_folder.py)
 
 #: module names of the corrector's parts in checkpoints saved before they moved under ``corrector.``
 LEGACY_PREFIXES = ("frame_encoder.", "extractor.", "encoder.", "residual.", "decoder.")
 
 
-class BaseMismatchError(ValueError):
-    """The base policy found at load time is not the one the corrector was trained against."""
-
-
-class DCDPPolicy(PreTrainedPolicy):
+class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
     """DCDP corrector around a frozen chunking base policy (see the module docstring)."""
 
     config_class = DCDPConfig
@@ -127,7 +121,7 @@ class DCDPPolicy(PreTrainedPolicy):
         self._async = AsyncPlanning(config, self.source, anchor)
         self.reset()
 
-    # ------------------------------------------------------------------ the base, loading and saving
+    # ------------------------------------------------------------------ the base
     @property
     def base(self) -> PreTrainedPolicy:
         """The frozen base policy (not a submodule of this one)."""
@@ -144,99 +138,10 @@ class DCDPPolicy(PreTrainedPolicy):
         self._async.close()
         self._source = self._sync.source = self._async.source = source
 
-    def _adopt_base(self, base: PreTrainedPolicy) -> None:
-        """Check ``base`` is the one the corrector was trained against (weights hash, type); record it."""
-        config = self.config
-        # base_location='remote': the weights are on the server's machine, there is no hash to check here
-        digest = state_dict_sha256(base.state_dict()) if config.base_location == "local" else None
-        if digest is not None and config.base_weights_sha256 is None:
-            config.base_weights_sha256 = digest
-        elif digest is not None and config.base_weights_sha256 != digest:
-            raise BaseMismatchError(
-                f"base_weights_sha256 mismatch: the corrector was trained against base weights "
-                f"{config.base_weights_sha256[:12]}..., but base_policy_path={config.base_policy_path!r} "
-                f"now holds {digest[:12]}...; retrain stage 1 or point base_policy_path at the original base"
-            )
-        if config.base_policy_type not in (None, base.config.type):
-            raise BaseMismatchError(
-                f"base_policy_type mismatch: recorded {config.base_policy_type!r}, found {base.config.type!r}"
-            )
-        config.base_policy_type = base.config.type
-        config.normalization_mapping = dict(base.config.normalization_mapping)
-
-    @classmethod
-    def from_pretrained(cls, pretrained_name_or_path, *, config: DCDPConfig | None = None, **kwargs):
-        # a config read from the folder names its base relative to that folder, whatever pretrained_path it
-        # was saved with (a corrector loaded from one folder and saved to another records the first)
-        read_here = config is None
-        if config is None:
-            config = DCDPConfig.from_pretrained(
-                pretrained_name_or_path,
-                **{
-                    k: v
-                    for k, v in kwargs.items()
-                    if k in ("revision", "cache_dir", "local_files_only", "token")
-                },
-            )
-        if (read_here or config.pretrained_path is None) and os.path.isdir(str(pretrained_name_or_path)):
-            config.pretrained_path = pretrained_name_or_path
-        kwargs["strict"] = True  # a corrector key that fails to load would silently leave a head at zero
-        try:
-            policy = super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
-        except RuntimeError as err:
-            if "Missing key" not in str(err) and "Unexpected key" not in str(err):
-                raise
-            raise ValueError(
-                f"corrector weights in {pretrained_name_or_path} do not match config.json "
-                f"({str(err).strip().splitlines()[-1].strip()}): it was saved by another dcdp version or "
-                "config; retrain it or restore the matching config.json"
-            ) from err
-        if policy.kernel is not None:
-            policy.kernel.warm_up()  # its first load (or compile) must not stall the first control step
-        return policy
-
-    def _save_pretrained(self, save_directory, *args, **kwargs) -> None:
-        """Save as LeRobot does, recording a local base relative to ``save_directory``."""
-        cfg = self.config
-        original = cfg.base_policy_path
-        cfg.base_policy_path = portable_base_reference(original, cfg.pretrained_path, save_directory)
-        try:
-            super()._save_pretrained(save_directory, *args, **kwargs)
-        finally:
-            cfg.base_policy_path = original
-
-    def push_model_to_hub(self, cfg, *args, **kwargs):
-        """Push the corrector only; its config names the base by Hub id (``hub_base_policy_path`` when the
-        base is a local folder), since a folder on this machine means nothing to whoever downloads it."""
-        config = self.config
-        local = Path(resolve_base_reference(config.base_policy_path, config.pretrained_path)).is_dir()
-        if local and not config.hub_base_policy_path:
-            raise ValueError(
-                "cannot push a corrector whose base is the local folder "
-                f"{config.base_policy_path!r}: push the base to the Hub first and name it with "
-                "--policy.hub_base_policy_path=<user/base> (its weights hash is checked on every load)"
-            )
-        original = config.base_policy_path
-        config.base_policy_path = config.hub_base_policy_path if local else original
-        try:
-            return super().push_model_to_hub(cfg, *args, **kwargs)
-        finally:
-            config.base_policy_path = original
-
     def to(self, *args, **kwargs):
         super().to(*args, **kwargs)
         self._base.to(*args, **kwargs)
         return self
-
-    def generate_model_card(self, dataset_repo_id, model_type, license, tags, cfg=None, dataset_meta=None):
-        """DCDP's own card (base reference and hash, measured numbers, eval command); built offline."""
-        from lerobot_dcdp.model_card import make_model_card
-
-        return make_model_card(self.config, self.corrector_sha256(), dataset_repo_id, license, tags)
-
-    def corrector_sha256(self) -> str:
-        """Content hash of the corrector's weights, named as inside the corrector (as every version saved)."""
-        return state_dict_sha256(self.corrector.state_dict())
 
     def get_optim_params(self) -> list[torch.nn.Parameter]:
         return [p for p in self.parameters() if p.requires_grad]
@@ -373,6 +278,3 @@ def _legacy_keys(state_dict: dict, prefix: str, *args) -> None:
         rest = key[len(prefix) :]
         if key.startswith(prefix) and rest.startswith(LEGACY_PREFIXES):
             state_dict[f"{prefix}corrector.{rest}"] = state_dict.pop(key)
-
-
-__all__ = ["DCDPPolicy", "BaseMismatchError"]
