@@ -36,6 +36,12 @@ and success per setting:
 - ``gate_anchor``: ``object_anchored`` (the training-free rule) with a corrector's completion gate applied at
   this strength (0: the plain rule; 1: the plan itself where the gate says "nearly done"): is the learned
   corrector, gated, better than its analytic teacher gated the same way?
+- ``lead_length``: ``--method`` (default ``gated_anchored``) with the folder's scene lead set to the setting
+  in steps, its shift optionally capped at ``--lead-cap`` (raw units): does a lead longer than one chunk
+  finish more in some drift directions, and in all of them?
+- ``world_carry``: the folder's gated anchoring where, as far as the gate fires, the kept plan is moved by the
+  setting's share of the lead's own estimate of the world's motion x the steps since plan time (the
+  non-privileged ``gate_drift``): does the robot get out of the drifting object's way at the finish?
 
 Usage: .venv/bin/python scripts/alignment_screens.py --screen horizon --settings 8 4 2 1
            [--policy models/pusht-dcdp-state-demos-late-gated] [--condition constant_0.5] [--episodes 100]
@@ -64,7 +70,12 @@ def _every(method: str, args: argparse.Namespace, steps: float):
     from near_misses import condition_rollout
 
     policy, _, act, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, method, lead_steps=args.lead_steps
+        args.policy,
+        args.condition,
+        args.episodes,
+        method,
+        lead_steps=args.lead_steps,
+        seed_start=args.seed_start,
     )
     policy.config.n_action_steps = int(steps)
     policy.reset()
@@ -90,7 +101,12 @@ def extrapolate(args: argparse.Namespace, lead: float):
     from lerobot_dcdp.benchmark.run import load_model
 
     policy, post, _, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "open_loop", lead_steps=args.lead_steps
+        args.policy,
+        args.condition,
+        args.episodes,
+        "open_loop",
+        lead_steps=args.lead_steps,
+        seed_start=args.seed_start,
     )
     _, pre, _, _ = load_model(args.policy)
     history = []
@@ -112,7 +128,12 @@ def lead(args: argparse.Namespace, steps: float):
     from near_misses import condition_rollout
 
     policy, _, act, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "object_anchored", lead_steps=args.lead_steps
+        args.policy,
+        args.condition,
+        args.episodes,
+        "object_anchored",
+        lead_steps=args.lead_steps,
+        seed_start=args.seed_start,
     )
     anchored = policy.modes["object_anchored"]
     previous = {}
@@ -136,7 +157,12 @@ def gate_share(args: argparse.Namespace, share: float):
     from lerobot_dcdp.completion_gate import gated_action
 
     policy, _, act, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "dcdp", lead_steps=args.lead_steps
+        args.policy,
+        args.condition,
+        args.episodes,
+        "dcdp",
+        lead_steps=args.lead_steps,
+        seed_start=args.seed_start,
     )
     if policy.completion_gate is None:
         raise SystemExit(f"{args.policy} has no completion gate")
@@ -149,7 +175,12 @@ def ensemble(args: argparse.Namespace, weight: float):
     from near_misses import condition_rollout
 
     policy, _, act, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "temporal_ensemble", lead_steps=args.lead_steps
+        args.policy,
+        args.condition,
+        args.episodes,
+        "temporal_ensemble",
+        lead_steps=args.lead_steps,
+        seed_start=args.seed_start,
     )
     policy.config.te_weight = weight
     return act, envs, seeds
@@ -163,7 +194,12 @@ def gate_drift(args: argparse.Namespace, share: float):
     from lerobot_dcdp.completion_gate import gated_action
 
     policy, _, corrected, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "dcdp", lead_steps=args.lead_steps
+        args.policy,
+        args.condition,
+        args.episodes,
+        "dcdp",
+        lead_steps=args.lead_steps,
+        seed_start=args.seed_start,
     )
     if policy.completion_gate is None:
         raise SystemExit(f"{args.policy} has no completion gate")
@@ -195,7 +231,12 @@ def drift_lead(args: argparse.Namespace, lead: float):
     from near_misses import condition_rollout
 
     policy, _, anchored, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "object_anchored", lead_steps=args.lead_steps
+        args.policy,
+        args.condition,
+        args.episodes,
+        "object_anchored",
+        lead_steps=args.lead_steps,
+        seed_start=args.seed_start,
     )
     policy.config.completion_gate = False  # the plain rule, whatever the folder holds
     velocity = np.zeros((len(seeds), 2))  # the drift the env applied on the newest step
@@ -220,7 +261,7 @@ def goal_lead(args: argparse.Namespace, lead: float):
 
     # the lead by hand here: the folder's own off
     policy, post, _, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, args.method, lead_steps=0
+        args.policy, args.condition, args.episodes, args.method, lead_steps=0, seed_start=args.seed_start
     )
 
     _, pre, _, _ = load_model(args.policy)
@@ -261,7 +302,12 @@ def tracker_jitter(args: argparse.Namespace, noise: float):
     from near_misses import condition_rollout
 
     policy, _, run, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, args.method, lead_steps=args.lead_steps
+        args.policy,
+        args.condition,
+        args.episodes,
+        args.method,
+        lead_steps=args.lead_steps,
+        seed_start=args.seed_start,
     )
     policy.config.lead_noise = noise
     rng = np.random.default_rng(0)
@@ -283,7 +329,12 @@ def still_world(args: argparse.Namespace, on: float):
     from near_misses import condition_rollout
 
     policy, _, act, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, args.method, lead_steps=args.lead_steps
+        args.policy,
+        args.condition,
+        args.episodes,
+        args.method,
+        lead_steps=args.lead_steps,
+        seed_start=args.seed_start,
     )
     anchored = policy.modes["object_anchored"]
     rule = anchored.act
@@ -307,7 +358,12 @@ def gate_anchor(args: argparse.Namespace, strength: float):
     from lerobot_dcdp.completion_gate import gated_action
 
     policy, _, act, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, "object_anchored", lead_steps=args.lead_steps
+        args.policy,
+        args.condition,
+        args.episodes,
+        "object_anchored",
+        lead_steps=args.lead_steps,
+        seed_start=args.seed_start,
     )
     if policy.completion_gate is None:
         raise SystemExit(f"{args.policy} has no completion gate")
@@ -320,6 +376,63 @@ def gate_anchor(args: argparse.Namespace, strength: float):
         )
 
     anchored.act = gated
+    return act, envs, seeds
+
+
+def lead_length(args: argparse.Namespace, steps: float):
+    """``--method`` with the scene lead set to ``steps``, its shift capped at ``--lead-cap`` where given."""
+    from near_misses import condition_rollout
+
+    policy, _, act, envs, seeds = condition_rollout(
+        args.policy,
+        args.condition,
+        args.episodes,
+        args.method,
+        lead_steps=int(steps),
+        seed_start=args.seed_start,
+    )
+    if args.lead_cap is not None:
+        observe = policy.lead.observe
+
+        def capped(points, record=True):
+            shift = observe(points, record)
+            return shift * (args.lead_cap / shift.norm(dim=-1, keepdim=True).clamp_min(1e-9)).clamp(max=1.0)
+
+        policy.lead.observe = capped
+    return act, envs, seeds
+
+
+def world_carry(args: argparse.Namespace, share: float):
+    """The folder's gated anchoring with the kept plan moved by ``share`` x the lead's world motion x the
+    steps since plan time, as far as the gate fires."""
+    from near_misses import condition_rollout
+
+    import lerobot_dcdp.modeling_dcdp as modeling
+    from lerobot_dcdp.completion_gate import gated_action
+
+    policy, _, anchored, envs, seeds = condition_rollout(
+        args.policy,
+        args.condition,
+        args.episodes,
+        "gated_anchored",
+        lead_steps=args.lead_steps,
+        seed_start=args.seed_start,
+    )
+    near = {}
+
+    def recording(plan, action, p):
+        near["p"] = p.detach().cpu().numpy()
+        return gated_action(plan, action, p)
+
+    modeling.gated_action = recording
+
+    def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
+        action = anchored(obs, active)
+        motion = policy.lead._motion
+        if motion is None:
+            return action
+        return action + share * near["p"][:, None] * policy.last_step * motion.cpu().numpy()
+
     return act, envs, seeds
 
 
@@ -336,6 +449,8 @@ SCREENS = {
     "goal_lead": goal_lead,
     "tracker_jitter": tracker_jitter,
     "still_world": still_world,
+    "lead_length": lead_length,
+    "world_carry": world_carry,
 }
 
 
@@ -348,6 +463,8 @@ def main() -> None:
     p.add_argument("--policy", default="models/pusht-dcdp-state-demos-late-gated")
     p.add_argument("--condition", default="constant_0.5")
     p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--seed-start", type=int, default=100_000, help="the first seed (the tables: 100000)")
+    p.add_argument("--lead-cap", type=float, help="lead_length: the largest shift (raw units)")
     p.add_argument(
         "--lead-steps",
         type=int,
