@@ -42,6 +42,9 @@ and success per setting:
 - ``world_carry``: the folder's gated anchoring where, as far as the gate fires, the kept plan is moved by the
   setting's share of the lead's own estimate of the world's motion x the steps since plan time (the
   non-privileged ``gate_drift``): does the robot get out of the drifting object's way at the finish?
+- ``goal_integral`` (privileged): ``--method`` with the folder's lead plus an integral term that grows, near
+  the env's goal, with the object's offset from the goal along the world's motion (gain = the setting): a lead
+  that finds the base's own steady-state offset in a pressed finish?
 
 Usage: .venv/bin/python scripts/alignment_screens.py --screen horizon --settings 8 4 2 1
            [--policy models/pusht-dcdp-state-demos-late-gated] [--condition constant_0.5] [--episodes 100]
@@ -436,6 +439,53 @@ def world_carry(args: argparse.Namespace, share: float):
     return act, envs, seeds
 
 
+def goal_integral(args: argparse.Namespace, gain: float):
+    """``--method`` with the folder's lead plus an integral term (privileged: the env's goal pose): while the
+    object's keypoint centroid is within ``--radius`` of the goal's and the world moves it, the lead grows by
+    ``gain`` x the centroid's offset from the goal along the world's motion (+: downstream), clamped to
+    [-lead (``--grow-only``: 0), ``--radius``]: does a lead that finds the base's own steady-state offset
+    finish everywhere?"""
+    from near_misses import condition_rollout
+
+    from lerobot_dcdp.pusht.geometry import GOAL_KP
+
+    policy, _, act, envs, seeds = condition_rollout(
+        args.policy,
+        args.condition,
+        args.episodes,
+        args.method,
+        lead_steps=args.lead_steps,
+        seed_start=args.seed_start,
+    )
+    goal = torch.as_tensor(GOAL_KP.mean(0))
+    extra = torch.zeros(len(seeds), dtype=torch.float64)
+    observe = policy.lead.observe
+    chunk = policy.config.n_action_steps
+    centroids: list[torch.Tensor] = []
+
+    def integrated(points, record=True):
+        shift = observe(points, record)
+        speed = shift.norm(dim=-1)
+        if not record or shift.shape[0] != extra.shape[0]:
+            return shift
+        heading = shift / speed.clamp_min(1e-9)[:, None]
+        centroid = points.mean(1).double()
+        centroids.append(centroid)
+        offset = centroid - goal
+        near = (offset.norm(dim=-1) < args.radius) & (speed > 0)
+        if args.held:  # only while the object makes less than half the world's progress over a chunk
+            moved = (centroid - centroids[max(0, len(centroids) - 1 - chunk)]).norm(dim=-1)
+            world = chunk * speed.double() / max(policy.config.lead_steps, 1)
+            near &= (len(centroids) > chunk) & (moved < 0.5 * world)
+        extra.add_(torch.where(near, gain * (offset * heading.double()).sum(-1), torch.zeros_like(extra)))
+        floor = torch.zeros_like(extra) if args.grow_only else -speed.double()
+        extra.copy_(torch.minimum(torch.maximum(extra, floor), torch.full_like(extra, args.radius)))
+        return shift + (extra[:, None] * heading.double()).to(shift.dtype)
+
+    policy.lead.observe = integrated
+    return act, envs, seeds
+
+
 SCREENS = {
     "horizon": horizon,
     "extrapolate": extrapolate,
@@ -451,6 +501,7 @@ SCREENS = {
     "still_world": still_world,
     "lead_length": lead_length,
     "world_carry": world_carry,
+    "goal_integral": goal_integral,
 }
 
 
@@ -465,6 +516,15 @@ def main() -> None:
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--seed-start", type=int, default=100_000, help="the first seed (the tables: 100000)")
     p.add_argument("--lead-cap", type=float, help="lead_length: the largest shift (raw units)")
+    p.add_argument("--radius", type=float, default=21.2, help="goal_integral: px around the goal it acts in")
+    p.add_argument(
+        "--grow-only", action="store_true", help="goal_integral: the lead only lengthens (floor 0)"
+    )
+    p.add_argument(
+        "--held",
+        action="store_true",
+        help="goal_integral: integrate only while the object is held against the world",
+    )
     p.add_argument(
         "--lead-steps",
         type=int,
