@@ -68,18 +68,20 @@ import numpy as np
 import torch
 
 
-def _every(method: str, args: argparse.Namespace, steps: float):
-    """``method`` executing ``steps`` steps per chunk."""
+def _rollout(args: argparse.Namespace, method: str, lead_steps: int | None = None) -> tuple:
+    """``near_misses.condition_rollout`` for the screen's folder, condition, episodes and first seed, with
+    ``lead_steps`` (None: ``--lead-steps``, itself None for the folder's own lead)."""
     from near_misses import condition_rollout
 
-    policy, _, act, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        method,
-        lead_steps=args.lead_steps,
-        seed_start=args.seed_start,
+    lead = args.lead_steps if lead_steps is None else lead_steps
+    return condition_rollout(
+        args.policy, args.condition, args.episodes, method, args.seed_start, lead_steps=lead
     )
+
+
+def _every(method: str, args: argparse.Namespace, steps: float):
+    """``method`` executing ``steps`` steps per chunk."""
+    policy, _, act, envs, seeds = _rollout(args, method)
     policy.config.n_action_steps = int(steps)
     policy.reset()
     return act, envs, seeds
@@ -98,19 +100,11 @@ def gated_horizon(args: argparse.Namespace, steps: float):
 def extrapolate(args: argparse.Namespace, lead: float):
     """``open_loop`` planning from object features moved ``lead`` steps along their recent motion."""
     from lerobot.envs.utils import preprocess_observation
-    from near_misses import condition_rollout
 
     from lerobot_dcdp.benchmark.rollout import _stack_obs
     from lerobot_dcdp.benchmark.run import load_model
 
-    policy, post, _, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        "open_loop",
-        lead_steps=args.lead_steps,
-        seed_start=args.seed_start,
-    )
+    policy, post, _, envs, seeds = _rollout(args, "open_loop")
     _, pre, _, _ = load_model(args.policy)
     history = []
 
@@ -128,16 +122,7 @@ def extrapolate(args: argparse.Namespace, lead: float):
 
 def lead(args: argparse.Namespace, steps: float):
     """``object_anchored`` carrying the plan to the object's pose ``steps`` steps on."""
-    from near_misses import condition_rollout
-
-    policy, _, act, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        "object_anchored",
-        lead_steps=args.lead_steps,
-        seed_start=args.seed_start,
-    )
+    policy, _, act, envs, seeds = _rollout(args, "object_anchored")
     anchored = policy.modes["object_anchored"]
     previous = {}
 
@@ -154,19 +139,10 @@ def lead(args: argparse.Namespace, steps: float):
 
 def gate_share(args: argparse.Namespace, share: float):
     """``dcdp`` keeping ``share`` of the correction where the completion gate fires."""
-    from near_misses import condition_rollout
-
     import lerobot_dcdp.modeling_dcdp as modeling
     from lerobot_dcdp.completion_gate import gated_action
 
-    policy, _, act, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        "dcdp",
-        lead_steps=args.lead_steps,
-        seed_start=args.seed_start,
-    )
+    policy, _, act, envs, seeds = _rollout(args, "dcdp")
     if policy.completion_gate is None:
         raise SystemExit(f"{args.policy} has no completion gate")
     modeling.gated_action = lambda plan, action, near: gated_action(plan, action, (1.0 - share) * near)
@@ -175,35 +151,17 @@ def gate_share(args: argparse.Namespace, share: float):
 
 def ensemble(args: argparse.Namespace, weight: float):
     """``temporal_ensemble`` with ``te_weight`` = ``weight``."""
-    from near_misses import condition_rollout
-
-    policy, _, act, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        "temporal_ensemble",
-        lead_steps=args.lead_steps,
-        seed_start=args.seed_start,
-    )
+    policy, _, act, envs, seeds = _rollout(args, "temporal_ensemble")
     policy.config.te_weight = weight
     return act, envs, seeds
 
 
 def gate_drift(args: argparse.Namespace, share: float):
     """``dcdp`` (gated) plus ``share`` x the env's drift since plan time, as far as the gate fires."""
-    from near_misses import condition_rollout
-
     import lerobot_dcdp.modeling_dcdp as modeling
     from lerobot_dcdp.completion_gate import gated_action
 
-    policy, _, corrected, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        "dcdp",
-        lead_steps=args.lead_steps,
-        seed_start=args.seed_start,
-    )
+    policy, _, corrected, envs, seeds = _rollout(args, "dcdp")
     if policy.completion_gate is None:
         raise SystemExit(f"{args.policy} has no completion gate")
     near = {}
@@ -231,16 +189,7 @@ def gate_drift(args: argparse.Namespace, share: float):
 def drift_lead(args: argparse.Namespace, lead: float):
     """``object_anchored`` (plain) with every action moved ``lead`` steps of the env's own drift ahead
     (privileged: the world's per-step motion read from the env, never the agent's push)."""
-    from near_misses import condition_rollout
-
-    policy, _, anchored, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        "object_anchored",
-        lead_steps=args.lead_steps,
-        seed_start=args.seed_start,
-    )
+    policy, _, anchored, envs, seeds = _rollout(args, "object_anchored")
     policy.config.completion_gate = False  # the plain rule, whatever the folder holds
     velocity = np.zeros((len(seeds), 2))  # the drift the env applied on the newest step
 
@@ -256,16 +205,13 @@ def drift_lead(args: argparse.Namespace, lead: float):
 def goal_lead(args: argparse.Namespace, lead: float):
     """``--method`` on the scene moved ``lead`` steps of the object's motion ahead, actions moved back."""
     from lerobot.envs.utils import preprocess_observation
-    from near_misses import condition_rollout
 
     from lerobot_dcdp.benchmark.rollout import _stack_obs
     from lerobot_dcdp.benchmark.run import load_model
     from lerobot_dcdp.scene_lead import repeated_motion
 
     # the lead by hand here: the folder's own off
-    policy, post, _, envs, seeds = condition_rollout(
-        args.policy, args.condition, args.episodes, args.method, lead_steps=0, seed_start=args.seed_start
-    )
+    policy, post, _, envs, seeds = _rollout(args, args.method, 0)
 
     _, pre, _, _ = load_model(args.policy)
     velocity = np.zeros((len(seeds), 2))  # the drift the env applied on the newest step
@@ -302,16 +248,7 @@ def goal_lead(args: argparse.Namespace, lead: float):
 def tracker_jitter(args: argparse.Namespace, noise: float):
     """``--method`` with the folder's own lead, the object's keypoints seen with Gaussian jitter
     (``--jitter`` px per coordinate per step, seeded) and the lead's ``lead_noise`` set to ``noise``."""
-    from near_misses import condition_rollout
-
-    policy, _, run, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        args.method,
-        lead_steps=args.lead_steps,
-        seed_start=args.seed_start,
-    )
+    policy, _, run, envs, seeds = _rollout(args, args.method)
     policy.config.lead_noise = noise
     rng = np.random.default_rng(0)
 
@@ -329,16 +266,7 @@ def still_world(args: argparse.Namespace, on: float):
     """``--method`` (an anchoring) with the folder's own lead where, with ``on``, the rule leaves the plan as
     planned once the lead has found the world still (a repeated zero step): the carry with the object's whole
     motion only while the world moves it (the demonstrations label's rule, run time)."""
-    from near_misses import condition_rollout
-
-    policy, _, act, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        args.method,
-        lead_steps=args.lead_steps,
-        seed_start=args.seed_start,
-    )
+    policy, _, act, envs, seeds = _rollout(args, args.method)
     anchored = policy.modes["object_anchored"]
     rule = anchored.act
 
@@ -356,18 +284,9 @@ def still_world(args: argparse.Namespace, on: float):
 
 def gate_anchor(args: argparse.Namespace, strength: float):
     """``object_anchored`` with the corrector's completion gate at ``strength``."""
-    from near_misses import condition_rollout
-
     from lerobot_dcdp.completion_gate import gated_action
 
-    policy, _, act, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        "object_anchored",
-        lead_steps=args.lead_steps,
-        seed_start=args.seed_start,
-    )
+    policy, _, act, envs, seeds = _rollout(args, "object_anchored")
     if policy.completion_gate is None:
         raise SystemExit(f"{args.policy} has no completion gate")
     anchored = policy.modes["object_anchored"]
@@ -384,16 +303,7 @@ def gate_anchor(args: argparse.Namespace, strength: float):
 
 def lead_length(args: argparse.Namespace, steps: float):
     """``--method`` with the scene lead set to ``steps``, its shift capped at ``--lead-cap`` where given."""
-    from near_misses import condition_rollout
-
-    policy, _, act, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        args.method,
-        lead_steps=int(steps),
-        seed_start=args.seed_start,
-    )
+    policy, _, act, envs, seeds = _rollout(args, args.method, int(steps))
     if args.lead_cap is not None:
         observe = policy.lead.observe
 
@@ -408,19 +318,10 @@ def lead_length(args: argparse.Namespace, steps: float):
 def world_carry(args: argparse.Namespace, share: float):
     """The folder's gated anchoring with the kept plan moved by ``share`` x the lead's world motion x the
     steps since plan time, as far as the gate fires."""
-    from near_misses import condition_rollout
-
     import lerobot_dcdp.modeling_dcdp as modeling
     from lerobot_dcdp.completion_gate import gated_action
 
-    policy, _, anchored, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        "gated_anchored",
-        lead_steps=args.lead_steps,
-        seed_start=args.seed_start,
-    )
+    policy, _, anchored, envs, seeds = _rollout(args, "gated_anchored")
     near = {}
 
     def recording(plan, action, p):
@@ -445,18 +346,9 @@ def goal_integral(args: argparse.Namespace, gain: float):
     ``gain`` x the centroid's offset from the goal along the world's motion (+: downstream), clamped to
     [-lead (``--grow-only``: 0), ``--radius``]: does a lead that finds the base's own steady-state offset
     finish everywhere?"""
-    from near_misses import condition_rollout
-
     from lerobot_dcdp.pusht.geometry import GOAL_KP
 
-    policy, _, act, envs, seeds = condition_rollout(
-        args.policy,
-        args.condition,
-        args.episodes,
-        args.method,
-        lead_steps=args.lead_steps,
-        seed_start=args.seed_start,
-    )
+    policy, _, act, envs, seeds = _rollout(args, args.method)
     goal = torch.as_tensor(GOAL_KP.mean(0))
     extra = torch.zeros(len(seeds), dtype=torch.float64)
     observe = policy.lead.observe
