@@ -345,7 +345,7 @@ def goal_integral(args: argparse.Namespace, gain: float):
     object's keypoint centroid is within ``--radius`` of the goal's and the world moves it, the lead grows by
     ``gain`` x the centroid's offset from the goal along the world's motion (+: downstream), clamped to
     [-lead (``--grow-only``: 0), ``--radius``]: does a lead that finds the base's own steady-state offset
-    finish everywhere?"""
+    finish everywhere? (``--held``, ``--steady``: only in a held or steady finish.)"""
     from lerobot_dcdp.pusht.geometry import GOAL_KP
 
     policy, _, act, envs, seeds = _rollout(args, args.method)
@@ -354,6 +354,7 @@ def goal_integral(args: argparse.Namespace, gain: float):
     observe = policy.lead.observe
     chunk = policy.config.n_action_steps
     centroids: list[torch.Tensor] = []
+    alongs: list[torch.Tensor] = []
 
     def integrated(points, record=True):
         shift = observe(points, record)
@@ -369,7 +370,12 @@ def goal_integral(args: argparse.Namespace, gain: float):
             moved = (centroid - centroids[max(0, len(centroids) - 1 - chunk)]).norm(dim=-1)
             world = chunk * speed.double() / max(policy.config.lead_steps, 1)
             near &= (len(centroids) > chunk) & (moved < 0.5 * world)
-        extra.add_(torch.where(near, gain * (offset * heading.double()).sum(-1), torch.zeros_like(extra)))
+        along = (offset * heading.double()).sum(-1)
+        alongs.append(along)
+        if args.steady is not None:  # only where the offset along the motion held still over two chunks
+            recent = torch.stack(alongs[-2 * chunk :])
+            near &= (len(alongs) >= 2 * chunk) & (recent.std(0) < args.steady)
+        extra.add_(torch.where(near, gain * along, torch.zeros_like(extra)))
         floor = torch.zeros_like(extra) if args.grow_only else -speed.double()
         extra.copy_(torch.minimum(torch.maximum(extra, floor), torch.full_like(extra, args.radius)))
         return shift + (extra[:, None] * heading.double()).to(shift.dtype)
@@ -411,6 +417,9 @@ def main() -> None:
     p.add_argument("--radius", type=float, default=21.2, help="goal_integral: px around the goal it acts in")
     p.add_argument(
         "--grow-only", action="store_true", help="goal_integral: the lead only lengthens (floor 0)"
+    )
+    p.add_argument(
+        "--steady", type=float, help="goal_integral: only where the offset's s.d. over two chunks is below"
     )
     p.add_argument(
         "--held",
