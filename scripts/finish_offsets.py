@@ -5,9 +5,10 @@ Runs one constant-drift condition (``near_misses.condition_rollout``: a benchmar
 does not succeed, prints over its last ``--last`` steps the block's mean offset from the goal pose along the
 drift direction (+: downstream) and across it, its spread along the drift, its angle error, and the agent's
 mean offset from the block along the drift (+: the agent is downstream of the block, where it can hold the
-block against the drift). Then the medians over the failed episodes. A finish that settles downstream of the
-goal wanted a longer scene lead; one that settles upstream, a shorter one (docs/ANALYSIS.md, "The lead's
-length and the drift's direction").
+block against the drift). Then the medians over the failed episodes, and how often (from step 30 on) the
+scene lead's estimate of the world's motion was within 20 % of the drift the env applied. A finish that
+settles downstream of the goal wanted a longer scene lead; one that settles upstream, a shorter one
+(docs/ANALYSIS.md, "Drift directions the tables never use").
 
 Usage: .venv/bin/python scripts/finish_offsets.py --policy models/pusht-act-state-anchored-gated
            --condition constant:0.5:0 [--direction 45] [--seed-start 300000] [--episodes 30]
@@ -56,15 +57,25 @@ def main() -> None:
     along = np.array([np.cos(angle), np.sin(angle)])
     across = np.array([-along[1], along[0]])
 
-    _, _, act, envs, seeds = condition_rollout(
+    policy, _, planned, envs, seeds = condition_rollout(
         a.policy, a.condition, a.episodes, a.method, a.seed_start, lead_steps=a.lead_steps
     )
     poses: dict[int, list] = {i: [] for i in range(len(seeds))}
     agents: dict[int, list] = {i: [] for i in range(len(seeds))}
+    lead_hits: list[bool] = []  # per step from step 30 on: the lead's world motion within 20 % of the drift
+    motion = {}
+
+    def act(obs: list[dict], active: np.ndarray) -> np.ndarray:
+        action = planned(obs, active)
+        motion["now"] = None if policy.lead._motion is None else policy.lead._motion.cpu().numpy()
+        return action
 
     def on_step(i: int, obs: dict, reward: float, info: dict) -> None:
         poses[i].append(np.asarray(info["block_pose"], dtype=float))
         agents[i].append(np.asarray(obs["agent_pos"], dtype=float))
+        drift = np.asarray(info["perturbation_offset"], dtype=float)
+        if len(poses[i]) > 30 and motion["now"] is not None and np.hypot(*drift) > 0:
+            lead_hits.append(bool(np.hypot(*(motion["now"][i] - drift)) <= 0.2 * np.hypot(*drift)))
 
     out = run_lockstep(envs, seeds, act, 300, on_step)
     rows = []
@@ -88,6 +99,11 @@ def main() -> None:
             f"agent - block along the drift {row[4]:+6.1f}"
         )
     print(f"{a.policy} {a.condition} {a.method}: {100 * np.mean(out.successes):.0f} % success")
+    if lead_hits:
+        print(
+            f"the lead's world motion within 20 % of the env's drift on {100 * np.mean(lead_hits):.1f} % of "
+            f"{len(lead_hits)} steps (from step 30 on; the env's clipped drift counted as the drift)"
+        )
     if rows:
         m = np.median(rows, axis=0)
         print(
