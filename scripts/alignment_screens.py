@@ -45,6 +45,10 @@ and success per setting:
 - ``goal_integral`` (privileged): ``--method`` with the folder's lead plus an integral term that grows, near
   the env's goal, with the object's offset from the goal along the world's motion (gain = the setting): a lead
   that finds the base's own steady-state offset in a pressed finish?
+- ``lead_in_range``: ``--method`` with the folder's lead, ``lead_in_range`` set by the setting (1: its shift
+  shortened so that no led keypoint leaves its coordinate's range in the base's training data, the
+  normaliser's min / max; 0: the lead before it): does the lead cost at fast drift come from showing the base
+  a scene beyond the arena's walls?
 
 Usage: .venv/bin/python scripts/alignment_screens.py --screen horizon --settings 8 4 2 1
            [--policy models/pusht-dcdp-state-demos-late-gated] [--condition constant_0.5] [--episodes 100]
@@ -384,6 +388,14 @@ def goal_integral(args: argparse.Namespace, gain: float):
     return act, envs, seeds
 
 
+def lead_in_range(args: argparse.Namespace, clip: float):
+    """``--method`` with the folder's scene lead and ``lead_in_range`` set by the setting (1: the lead
+    shortened so that no led keypoint leaves its coordinate's range in the base's data, as built; 0: not)."""
+    policy, _, act, envs, seeds = _rollout(args, args.method)
+    policy.config.lead_in_range = bool(clip)
+    return act, envs, seeds
+
+
 SCREENS = {
     "horizon": horizon,
     "extrapolate": extrapolate,
@@ -400,6 +412,7 @@ SCREENS = {
     "lead_length": lead_length,
     "world_carry": world_carry,
     "goal_integral": goal_integral,
+    "lead_in_range": lead_in_range,
 }
 
 
@@ -431,7 +444,7 @@ def main() -> None:
         type=int,
         help="override the folder's scene lead (the screens before it existed ran with none: 0)",
     )
-    p.add_argument("--method", default="gated_anchored", help="goal_lead: the execution method")
+    p.add_argument("--method", default="gated_anchored", help="the execution method (goal_lead and others)")
     p.add_argument(
         "--velocity",
         choices=["true", "median", "repeated"],
@@ -445,17 +458,24 @@ def main() -> None:
     p.add_argument("--k", type=int, default=4, help="extrapolate: steps the object's velocity is taken over")
     a = p.parse_args()
     torch.set_num_threads(1)
+    scores = {}
     for setting in a.settings:
         started = time.time()
         act, envs, seeds, *on_step = SCREENS[a.screen](a, setting)
         out = run_lockstep(envs, seeds, act, 300, *on_step)
         for env in envs:
             env.close()
+        scores[setting] = np.asarray(out.max_rewards, dtype=float)
         print(
             f"{a.policy} {a.condition} {a.screen}={setting:g}: score {np.mean(out.max_rewards):.3f} "
             f"success {100 * np.mean(out.successes):.0f} % ({time.time() - started:.0f} s)",
             flush=True,
         )
+    first = a.settings[0]
+    for setting in a.settings[1:]:  # every setting against the first, on the same seeds
+        d = scores[setting] - scores[first]
+        se = d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else float("nan")
+        print(f"{a.screen}={setting:g} - {a.screen}={first:g}: score {d.mean():+.3f} ± {se:.3f} (paired)")
 
 
 if __name__ == "__main__":

@@ -8,9 +8,19 @@ import pytest
 import torch
 from helpers import env_observations, make_dcdp_policy
 
+from lerobot_dcdp.base_normalizer import BaseNormalizer
 from lerobot_dcdp.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
-from lerobot_dcdp.scene_lead import SceneLead, lead_applies, moved_xy, repeated_motion, tracker_noise
+from lerobot_dcdp.scene_lead import (
+    SceneLead,
+    check_lead_features,
+    data_range,
+    in_range_shift,
+    lead_applies,
+    moved_xy,
+    repeated_motion,
+    tracker_noise,
+)
 
 KEY = "observation.environment_state"
 
@@ -70,7 +80,9 @@ def test_tracker_noise_is_the_jitter_of_the_demonstrations_still_steps() -> None
 
 
 def test_the_motion_found_last_holds_through_a_window_of_pushes() -> None:
-    config = SimpleNamespace(lead_steps=8, lead_window=4, lead_tolerance=0.05, lead_repeats=3, lead_noise=0.0)
+    config = SimpleNamespace(
+        lead_steps=8, lead_window=4, lead_tolerance=0.05, lead_repeats=3, lead_noise=0.0, lead_in_range=False
+    )
     lead = SceneLead(config, normalizer=None)
     drift, centroid = torch.tensor([[0.5, 0.0]]), torch.zeros(1, 2)
     shifts = []
@@ -89,6 +101,73 @@ def test_the_motion_found_last_holds_through_a_window_of_pushes() -> None:
     torch.testing.assert_close(lead.observe(centroid[:, None].repeat(1, 3, 1)), 8 * drift)
     lead.reset()
     assert lead.observe(centroid[:, None].repeat(1, 3, 1)).abs().sum() == 0
+
+
+def test_in_range_shift_shortens_the_lead_at_the_datas_edge_and_never_reverses_it() -> None:
+    low = torch.tensor([[0.0, 0.0], [10.0, 0.0]])  # each keypoint coordinate has its own range
+    high = torch.tensor([[100.0, 50.0], [100.0, 60.0]])
+    points = torch.tensor([[[90.0, 20.0], [30.0, 55.0]], [[50.0, 25.0], [50.0, 30.0]]])  # (B=2, N=2, 2)
+    shift = torch.tensor([[20.0, -30.0], [-5.0, 4.0]])
+    # first scene: x may move up by 10 (the first keypoint's room), y down by 20 (the first's); the second
+    # scene has room for its whole shift
+    torch.testing.assert_close(
+        in_range_shift(points, shift, low, high), torch.tensor([[10.0, -20.0], [-5.0, 4.0]])
+    )
+    # a keypoint already beyond its range is not pulled back in: no further out, and no move back either
+    outside = torch.tensor([[[105.0, 20.0], [30.0, 30.0]]])
+    torch.testing.assert_close(
+        in_range_shift(outside, torch.tensor([[6.0, 3.0]]), low, high), torch.tensor([[0.0, 3.0]])
+    )
+    torch.testing.assert_close(
+        in_range_shift(outside, torch.tensor([[-6.0, 3.0]]), low, high), torch.tensor([[-6.0, 3.0]])
+    )
+
+
+def test_the_lead_stays_within_the_bases_data_range_and_needs_its_statistics() -> None:
+    stats = {"min": torch.tensor([0.0, 0.0, 0.0, 0.0]), "max": torch.tensor([100.0, 100.0, 100.0, 90.0])}
+    normalizer = BaseNormalizer({KEY: ("MIN_MAX", stats)})
+    low, high = data_range(normalizer, KEY)
+    assert low.shape == high.shape == (2, 2) and high[1].tolist() == [100.0, 90.0]
+    config = SimpleNamespace(
+        lead_steps=8,
+        lead_window=4,
+        lead_tolerance=0.05,
+        lead_repeats=3,
+        lead_noise=0.0,
+        lead_in_range=True,
+        anchor_feature=KEY,
+    )
+    lead, drift = SceneLead(config, normalizer), torch.tensor([[1.0, 2.0]])
+    pair = torch.tensor([[0.0, 0.0], [10.0, 10.0]])  # the object's two keypoints around its centroid
+    start = torch.tensor([[40.0, 50.0]])
+    for step in range(6):  # drifting towards the top of the data's range; the lead is found at step 4
+        shift = lead.observe(start + step * drift + pair[None])
+    # 8 x (1, 2) = (8, 16) unclipped; the second keypoint's y is at 50 + 10 + 10 = 70, 20 below its 90
+    torch.testing.assert_close(shift, torch.tensor([[8.0, 16.0]]))
+    for step in range(6, 16):
+        shift = lead.observe(start + step * drift + pair[None])
+    # at step 15 that y is 90: no room left up y, x (65 + 10 = 75 of 100) keeps its whole lead
+    torch.testing.assert_close(shift, torch.tensor([[8.0, 0.0]]))
+    config.lead_in_range = False
+    torch.testing.assert_close(lead.observe(start + 15 * drift + pair[None], record=False), 8 * drift)
+    # a base whose statistics hold no min / max: one clear error naming the feature and the way out
+    bare = BaseNormalizer({KEY: ("MEAN_STD", {"mean": torch.zeros(4), "std": torch.ones(4)})})
+    with pytest.raises(
+        ValueError, match=r"lead_in_range needs the min / max of 'observation.environment_state'"
+    ):
+        data_range(bare, KEY)
+    with pytest.raises(ValueError, match="lead_in_range=false"):
+        check_lead_features(
+            SimpleNamespace(anchor_feature=KEY, lead_state_feature="observation.state", lead_in_range=True),
+            {KEY: _feature((4,)), "observation.state": _feature((2,))},
+            bare,
+        )
+
+
+def _feature(shape: tuple[int, ...]):
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    return PolicyFeature(type=FeatureType.STATE, shape=shape)
 
 
 def test_moved_xy_moves_every_keypoint_or_the_robots_xy_only() -> None:
@@ -159,7 +238,10 @@ def _actions(policy, observations: list[dict]) -> torch.Tensor:
 @pytest.mark.parametrize("execution", ["object_anchored", "dcdp"])
 def test_the_policy_acts_in_the_led_scene_and_moves_its_actions_back(diffusion_base, demo_root, execution):
     window, lead, velocity = 4, 3, torch.tensor([1.5, -0.75])
-    policy = _tiny_policy(diffusion_base, demo_root, execution=execution, lead_window=window)
+    # the lead as found (the test demonstrations' range is narrow; the range's clip has its own tests)
+    policy = _tiny_policy(
+        diffusion_base, demo_root, execution=execution, lead_window=window, lead_in_range=False
+    )
     torch.manual_seed(1)
     with torch.no_grad():  # a corrector that moves the plan
         for p in policy.corrector.residual.parameters():
@@ -265,12 +347,20 @@ def test_the_fit_leads_by_default_where_the_base_can_be_led_and_refuses_an_expli
     keypoints = PolicyFeature(type=FeatureType.ENV, shape=(16,))
     image = PolicyFeature(type=FeatureType.VISUAL, shape=(3, 96, 96))
 
-    def folder(base_inputs: dict, anchor: str | None = KEY) -> SimpleNamespace:
+    ranged = ("MIN_MAX", {"min": torch.zeros(16), "max": torch.full((16,), 512.0)})
+
+    def folder(base_inputs: dict, anchor: str | None = KEY, stats: tuple = ranged) -> SimpleNamespace:
         config = SimpleNamespace(
-            anchor_feature=anchor, n_action_steps=8, lead_steps=0, lead_state_feature="observation.state"
+            anchor_feature=anchor,
+            n_action_steps=8,
+            lead_steps=0,
+            lead_in_range=True,
+            lead_state_feature="observation.state",
         )
         return SimpleNamespace(
-            config=config, base=SimpleNamespace(config=SimpleNamespace(input_features=base_inputs))
+            config=config,
+            base=SimpleNamespace(config=SimpleNamespace(input_features=base_inputs)),
+            normalizer=BaseNormalizer({KEY: stats}),
         )
 
     led = folder({"observation.state": state, KEY: keypoints})
@@ -286,3 +376,13 @@ def test_the_fit_leads_by_default_where_the_base_can_be_led_and_refuses_an_expli
     assert set_lead(no_anchor, None).startswith("no scene lead") and no_anchor.config.lead_steps == 0
     with pytest.raises(ValueError, match="anchor_feature"):
         set_lead(no_anchor, 4)
+    # a base whose statistics lack the keypoints' min / max: no default lead, an explicit one refused
+    unranged = folder(
+        {"observation.state": state, KEY: keypoints},
+        stats=("MEAN_STD", {"mean": torch.zeros(16), "std": torch.ones(16)}),
+    )
+    assert set_lead(unranged, None).startswith("no scene lead (lead_in_range needs the min / max")
+    with pytest.raises(ValueError, match="lead_in_range=false"):
+        set_lead(unranged, 8)
+    unranged.config.lead_in_range = False  # led without the range, as asked
+    assert set_lead(unranged, 8) == "scene lead 8 steps"

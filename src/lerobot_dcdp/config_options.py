@@ -161,6 +161,10 @@ class CorrectionOptions:
             (0: exact, as in simulation). ``dcdp-fit-completion-gate`` measures it on the demonstrations'
             still steps; without it a still object's jittering steps never repeat and the motion found last
             holds.
+        lead_in_range: Shorten the lead, per axis, so that no led keypoint leaves the range its coordinate has
+            in the base's training data (the base's saved min / max of ``anchor_feature``): the world cannot
+            carry the object through the workspace's walls, and the base never saw it beyond them. Default
+            True; a base whose statistics lack min / max needs ``false``.
         lead_state_feature: Observation key whose first two dims are the robot's xy in the keypoints' frame
             (the frame of the actions' first two dims), moved with the object by the lead. The base must read
             it and the anchor feature, and no image.
@@ -181,6 +185,7 @@ class CorrectionOptions:
     lead_tolerance: float = 0.05
     lead_repeats: int = 3
     lead_noise: float = 0.0
+    lead_in_range: bool = True
     lead_state_feature: str = "observation.state"
 
 

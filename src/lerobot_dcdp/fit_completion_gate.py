@@ -190,7 +190,7 @@ def set_lead(policy, lead_steps: int | None) -> str:
         if steps and not config.anchor_feature:
             raise ValueError("a scene lead needs a folder with an anchor_feature (the object's keypoints)")
         if steps:
-            check_lead_features(config, dict(policy.base.config.input_features or {}))
+            check_lead_features(config, dict(policy.base.config.input_features or {}), policy.normalizer)
     except ValueError as e:
         if explicit:
             raise

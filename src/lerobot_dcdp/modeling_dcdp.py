@@ -113,7 +113,7 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
             config, {k: tuple(declared[k].shape) if k in declared else None for k in dict.fromkeys(needed)}
         )
         if config.lead_steps:
-            check_lead_features(config, dict(base.config.input_features or {}))
+            check_lead_features(config, dict(base.config.input_features or {}), self.normalizer)
         self.lead = SceneLead(config, self.normalizer)
         self.kernel = KernelRunner(self.corrector) if config.correction == "residual" else None
         self.modes = make_execution_modes(config, self.corrector, self.kernel, anchor)

@@ -17,6 +17,11 @@ window, which a median would follow (docs/ANALYSIS.md, "the world's motion, not 
 repeats, the motion found last holds; a still object's steps are zero and repeat (with a jittering tracker,
 only within ``lead_noise``). Until a window has been seen the lead is zero.
 
+With ``lead_in_range`` (default) the lead is clipped, per axis, so that no led keypoint leaves the range its
+coordinate has in the base's training data (the base's saved min / max): the world cannot carry the object
+through the workspace's walls, and a base shown an object beyond them plans from a scene it never saw
+(docs/ANALYSIS.md, "The lead kept inside the demonstrations' range").
+
 The robot's xy are the first two dims of ``lead_state_feature``, in the keypoints' frame, as the actions'
 first two dims are (the frame ``object_anchored`` already assumes); the base must read both, and no image.
 The lead applies in the modes that move the plan (``dcdp``, ``object_anchored``:
@@ -100,6 +105,31 @@ def tracker_noise(points: Tensor, episode_index: Tensor) -> float:
     return STILL_GAP_FACTOR * float(steps.quantile(0.25))
 
 
+def in_range_shift(points: Tensor, shift: Tensor, low: Tensor, high: Tensor) -> Tensor:
+    """The largest per-axis part of ``shift`` (B, 2) that keeps every keypoint of ``points`` (B, N, 2) within
+    its own coordinate's range ``[low, high]`` (N, 2) (pure). The shift is shortened, never reversed: a
+    keypoint already outside its range is not pulled back in."""
+    up = (high - points).amin(1).clamp_min(0)  # (B, 2): how far the keypoints may move up each axis
+    down = (low - points).amax(1).clamp_max(0)  # (B, 2): and down (<= 0)
+    return torch.minimum(torch.maximum(shift, down.to(shift.dtype)), up.to(shift.dtype))
+
+
+def data_range(normalizer: BaseNormalizer, key: str) -> tuple[Tensor, Tensor]:
+    """The range ``(low, high)`` (N, 2) of each xy keypoint coordinate of ``key`` in the base's training data,
+    from its saved statistics.
+
+    Raises:
+        ValueError: The base's statistics hold no min / max for ``key``.
+    """
+    _, stats = normalizer.stats.get(key, ("IDENTITY", {}))
+    if "min" not in stats or "max" not in stats:
+        raise ValueError(
+            f"lead_in_range needs the min / max of {key!r} in the base's saved statistics, which has "
+            f"{sorted(stats) or 'none'}: set --policy.lead_in_range=false to lead without the data's range"
+        )
+    return stats["min"].reshape(-1, 2), stats["max"].reshape(-1, 2)
+
+
 def moved_xy(x: Tensor, shift: Tensor, pairs: bool) -> Tensor:
     """``x`` (B, D) in raw units with ``shift`` (B, 2) added to every xy pair (``pairs``) or to its first
     two dims only (pure)."""
@@ -108,13 +138,15 @@ def moved_xy(x: Tensor, shift: Tensor, pairs: bool) -> Tensor:
     return torch.cat([x[:, :2] + shift, x[:, 2:]], dim=1)
 
 
-def check_lead_features(config, base_features: dict) -> None:
+def check_lead_features(config, base_features: dict, normalizer: BaseNormalizer) -> None:
     """Refuse a lead the base would not see: the base must read the object's keypoints (``anchor_feature``)
-    and ``lead_state_feature`` (a vector with the robot's xy first), and no image, which the lead cannot move.
+    and ``lead_state_feature`` (a vector with the robot's xy first), and no image, which the lead cannot move;
+    with ``lead_in_range``, its statistics must hold the keypoints' min / max.
 
     Args:
         config: The policy config.
         base_features: The base's input features (``{key: PolicyFeature}``).
+        normalizer: The base's normaliser (its saved statistics).
     """
     from lerobot.configs.types import FeatureType
 
@@ -137,6 +169,8 @@ def check_lead_features(config, base_features: dict) -> None:
     images = sorted(k for k, f in base_features.items() if f.type is FeatureType.VISUAL)
     if images:
         raise ValueError(f"the scene lead cannot move the images the base reads ({images}): set lead_steps=0")
+    if config.lead_in_range:
+        data_range(normalizer, config.anchor_feature)
 
 
 def lead_applies(config) -> bool:
@@ -150,7 +184,7 @@ class SceneLead:
 
     Args:
         config: The policy config (``lead_steps``, ``lead_window``, ``lead_tolerance``, ``lead_repeats``,
-            ``lead_noise``, ``lead_state_feature``, ``anchor_feature``).
+            ``lead_noise``, ``lead_in_range``, ``lead_state_feature``, ``anchor_feature``).
         normalizer: The base's normaliser: observations and actions are moved in raw units.
     """
 
@@ -181,8 +215,9 @@ class SceneLead:
 
     def observe(self, points: Tensor, record: bool = True) -> Tensor:
         """The raw shift (B, 2) for the object's raw keypoints ``points`` (B, N, 2): ``lead_steps`` x the
-        world's motion over the track (zero before a window); ``record``: the centroid joins the track and the
-        motion found is kept (False: a query that leaves both as they were)."""
+        world's motion over the track (zero before a window), with ``lead_in_range`` shortened so that the led
+        keypoints stay within the base's data range; ``record``: the centroid joins the track and the motion
+        found is kept (False: a query that leaves both as they were)."""
         cfg = self.config
         centroid = points.mean(1)
         fresh = not (self._track and self._track[-1].shape == centroid.shape)  # a new batch of episodes
@@ -195,7 +230,11 @@ class SceneLead:
             motion = torch.where(found[:, None], found_motion, motion)
         if record:
             self._track, self._motion = track, motion
-        return cfg.lead_steps * motion
+        shift = cfg.lead_steps * motion
+        if cfg.lead_in_range:
+            low, high = data_range(self.normalizer, cfg.anchor_feature)
+            shift = in_range_shift(points, shift, low.to(points), high.to(points))
+        return shift
 
     def _normalized(self, key: str, raw: Tensor, batch: dict[str, Tensor]) -> Tensor:
         return self.normalizer(key, raw).to(batch[key].dtype)
