@@ -47,8 +47,8 @@ and success per setting:
   that finds the base's own steady-state offset in a pressed finish?
 - ``lead_in_range``: ``--method`` with the folder's lead, ``lead_in_range`` set by the setting (1: its shift
   shortened so that no led keypoint leaves its coordinate's range in the base's training data, the
-  normaliser's min / max; 0: the lead before it): does the lead cost at fast drift come from showing the base
-  a scene beyond the arena's walls?
+  normaliser's min / max; 0: the lead before it; 2: as 1, and the robot's led xy kept inside its own range
+  too): does the lead cost at fast drift come from showing the base a scene beyond the arena's walls?
 
 Usage: .venv/bin/python scripts/alignment_screens.py --screen horizon --settings 8 4 2 1
            [--policy models/pusht-dcdp-state-demos-late-gated] [--condition constant_0.5] [--episodes 100]
@@ -393,6 +393,25 @@ def lead_in_range(args: argparse.Namespace, clip: float):
     shortened so that no led keypoint leaves its coordinate's range in the base's data, as built; 0: not)."""
     policy, _, act, envs, seeds = _rollout(args, args.method)
     policy.config.lead_in_range = bool(clip)
+    if clip == 2:  # the robot's xy kept inside its own range too (lead_state_feature's first two dims)
+        from lerobot_dcdp.scene_lead import in_range_shift
+
+        lead, cfg = policy.lead, policy.config
+        _, stats = policy.normalizer.stats[cfg.lead_state_feature]
+        low, high = stats["min"][:2].reshape(1, 2), stats["max"][:2].reshape(1, 2)
+        observe, robot = lead.observe, {}
+
+        def enter(batch, record=True):
+            state = policy.normalizer(cfg.lead_state_feature, batch[cfg.lead_state_feature], inverse=True)
+            robot["xy"] = state[:, None, :2]
+            return type(lead).enter(lead, batch, record)
+
+        def observe_both(points, record=True):
+            shift = observe(points, record)
+            xy = robot["xy"].to(points)
+            return in_range_shift(xy, shift, low.to(points), high.to(points))
+
+        lead.enter, lead.observe = enter, observe_both
     return act, envs, seeds
 
 
