@@ -79,11 +79,15 @@ def test_tracker_noise_is_the_jitter_of_the_demonstrations_still_steps() -> None
         tracker_noise(exact[:2], torch.tensor([0, 1]))
 
 
-def test_the_motion_found_last_holds_through_a_window_of_pushes() -> None:
-    config = SimpleNamespace(
-        lead_steps=8, lead_window=4, lead_tolerance=0.05, lead_repeats=3, lead_noise=0.0, lead_in_range=False
+def _lead_config(**extra) -> SimpleNamespace:
+    """A scene lead's config: 8 steps of the motion found in a 4-step window, plus ``extra``."""
+    return SimpleNamespace(
+        lead_steps=8, lead_window=4, lead_tolerance=0.05, lead_repeats=3, lead_noise=0.0, **extra
     )
-    lead = SceneLead(config, normalizer=None)
+
+
+def test_the_motion_found_last_holds_through_a_window_of_pushes() -> None:
+    lead = SceneLead(_lead_config(lead_in_range=False), normalizer=None)
     drift, centroid = torch.tensor([[0.5, 0.0]]), torch.zeros(1, 2)
     shifts = []
     for step in range(12):  # 6 steps of drift, then 6 of a push that varies (no step repeats another)
@@ -128,15 +132,7 @@ def test_the_lead_stays_within_the_bases_data_range_and_needs_its_statistics() -
     normalizer = BaseNormalizer({KEY: ("MIN_MAX", stats)})
     low, high = data_range(normalizer, KEY)
     assert low.shape == high.shape == (2, 2) and high[1].tolist() == [100.0, 90.0]
-    config = SimpleNamespace(
-        lead_steps=8,
-        lead_window=4,
-        lead_tolerance=0.05,
-        lead_repeats=3,
-        lead_noise=0.0,
-        lead_in_range=True,
-        anchor_feature=KEY,
-    )
+    config = _lead_config(lead_in_range=True, anchor_feature=KEY)
     lead, drift = SceneLead(config, normalizer), torch.tensor([[1.0, 2.0]])
     pair = torch.tensor([[0.0, 0.0], [10.0, 10.0]])  # the object's two keypoints around its centroid
     start = torch.tensor([[40.0, 50.0]])

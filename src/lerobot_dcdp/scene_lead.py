@@ -191,6 +191,7 @@ class SceneLead:
     def __init__(self, config, normalizer: BaseNormalizer) -> None:
         self.config = config
         self.normalizer = normalizer
+        self._range: tuple[Tensor, Tensor] | None = None  # the data's range, read once (lead_in_range)
         self.reset()
 
     def reset(self) -> None:
@@ -232,9 +233,16 @@ class SceneLead:
             self._track, self._motion = track, motion
         shift = cfg.lead_steps * motion
         if cfg.lead_in_range:
-            low, high = data_range(self.normalizer, cfg.anchor_feature)
-            shift = in_range_shift(points, shift, low.to(points), high.to(points))
+            shift = in_range_shift(points, shift, *self._data_range(points))
         return shift
+
+    def _data_range(self, points: Tensor) -> tuple[Tensor, Tensor]:
+        """The anchor keypoints' data range on ``points``' device and dtype (statistics read once)."""
+        kept = self._range
+        if kept is None or (kept[0].dtype, kept[0].device) != (points.dtype, points.device):
+            low, high = data_range(self.normalizer, self.config.anchor_feature)
+            self._range = (low.to(points), high.to(points))
+        return self._range
 
     def _normalized(self, key: str, raw: Tensor, batch: dict[str, Tensor]) -> Tensor:
         return self.normalizer(key, raw).to(batch[key].dtype)
