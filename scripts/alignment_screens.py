@@ -45,6 +45,9 @@ and success per setting:
 - ``goal_integral`` (privileged): ``--method`` with the folder's lead plus an integral term that grows, near
   the env's goal, with the object's offset from the goal along the world's motion (gain = the setting): a lead
   that finds the base's own steady-state offset in a pressed finish?
+- ``time_skip``: ``--method`` executing each chunk from its entry k (the setting) on, the base planning on
+  time from this step's observation: the part of a late base (``--delay``) that is not staleness. Does acting
+  k steps further along the plan (the agent's controller lags its command) finish more?
 - ``lead_in_range``: ``--method`` with the folder's lead, ``lead_in_range`` set by the setting (1: its shift
   shortened so that no led keypoint leaves its coordinate's range in the base's training data, the
   normaliser's min / max; 0: the lead before it; 2: as 1, and the robot's led xy kept inside its own range
@@ -79,7 +82,7 @@ def _rollout(args: argparse.Namespace, method: str, lead_steps: int | None = Non
 
     lead = args.lead_steps if lead_steps is None else lead_steps
     return condition_rollout(
-        args.policy, args.condition, args.episodes, method, args.seed_start, lead_steps=lead
+        args.policy, args.condition, args.episodes, method, args.seed_start, lead_steps=lead, delay=args.delay
     )
 
 
@@ -415,6 +418,34 @@ def lead_in_range(args: argparse.Namespace, clip: float):
     return act, envs, seeds
 
 
+_SYNC_CHUNK = None
+
+
+def time_skip(args: argparse.Namespace, k: float):
+    """``--method`` with every chunk used from its entry ``k`` on, planned on time (``SyncPlanning._chunk``
+    patched: the plan-time references are this step's, as without a delay)."""
+    from lerobot_dcdp import planning
+
+    global _SYNC_CHUNK
+    _SYNC_CHUNK = _SYNC_CHUNK or planning.SyncPlanning._chunk
+    skip = int(k)
+    if args.delay:
+        raise SystemExit("time_skip plans on time: leave --delay at 0")
+
+    def skipped(self, state, prepared, batch, mode):
+        if not skip:
+            return _SYNC_CHUNK(self, state, prepared, batch, mode)
+        state.at_plan = state.rep
+        state.anchor_plan = self.anchor.points(batch) if mode.anchored else None
+        state.chunk_delay = 0
+        length = min((mode.plan_length or self.source.chunk_length) + skip, self.source.max_length)
+        return self.source.chunk(prepared, length)[:, skip:]
+
+    planning.SyncPlanning._chunk = skipped
+    policy, _, act, envs, seeds = _rollout(args, args.method)
+    return act, envs, seeds
+
+
 SCREENS = {
     "horizon": horizon,
     "extrapolate": extrapolate,
@@ -432,6 +463,7 @@ SCREENS = {
     "world_carry": world_carry,
     "goal_integral": goal_integral,
     "lead_in_range": lead_in_range,
+    "time_skip": time_skip,
 }
 
 
@@ -445,6 +477,7 @@ def main() -> None:
     p.add_argument("--condition", default="constant_0.5")
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--seed-start", type=int, default=100_000, help="the first seed (the tables: 100000)")
+    p.add_argument("--delay", type=int, default=0, help="the base answers this many control steps late")
     p.add_argument("--lead-cap", type=float, help="lead_length: the largest shift (raw units)")
     p.add_argument("--radius", type=float, default=21.2, help="goal_integral: px around the goal it acts in")
     p.add_argument(

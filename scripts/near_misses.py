@@ -26,10 +26,12 @@ def condition_rollout(
     method: str,
     seed_start: int = 100_000,
     lead_steps: int | None = None,
+    delay: int = 0,
 ) -> tuple:
     """The benchmark's envs for one condition and the corrector in one execution mode, seeded as the benchmark
     seeds a batch; ``lead_steps`` overrides the folder's scene lead (None: the folder's, as the benchmark runs
-    it). ``condition``: a benchmark condition's name, or ``unseen_check.py``'s ``constant:<px>:<deg>`` /
+    it); ``delay``: the base answers that many control steps late (the benchmark's ``--delays``).
+    ``condition``: a benchmark condition's name, or ``unseen_check.py``'s ``constant:<px>:<deg>`` /
     ``random:<px>``. Returns ``(policy, post, act, envs, seeds)``: ``post`` the corrector's post-processor,
     ``act`` the policy call ``run_lockstep`` takes."""
     from lerobot.envs.utils import preprocess_observation
@@ -46,7 +48,7 @@ def condition_rollout(
     else:
         cond, extra = {c.name: c for c in CONDITIONS}[condition], {}
     seeds = list(range(seed_start, seed_start + episodes))
-    set_mode(policy, method)
+    set_mode(policy, method, delay)
     if lead_steps is not None:
         policy.config.lead_steps = lead_steps
     envs = [

@@ -5,7 +5,8 @@ The benchmark's rollouts (same envs, lock-step loop and per-batch seeding as ``d
 drift direction other than the protocol's 45 degrees (``constant``) or another direction set (``random``), a
 magnitude between the protocol's, and seeds from 300000 (the tables use 100000..). Prints one row per
 condition: score ± s.e. and success per method, and DCDP (without a ``dcdp`` method: ``gated_anchored``) -
-open loop on the same seeds (± the paired s.e.).
+open loop and - object anchoring (where run) on the same seeds (± the paired s.e.); with several conditions,
+a last line pools those differences over all their episodes.
 
 Usage: .venv/bin/python scripts/unseen_check.py [--policy models/pusht-dcdp-state-demos-late] [--episodes 30]
            [--seed-start 300000] [--conditions static constant:1.75:200 random:1.25 constant:0.6:300]
@@ -62,10 +63,12 @@ def main() -> None:
     seeds = list(range(a.seed_start, a.seed_start + a.episodes))
     print(f"policy {a.policy}, {a.episodes} episodes per cell from seed {a.seed_start}")
     judged = next((m for m in ("dcdp", "gated_anchored") if m in a.methods), None)
-    judged = judged if "open_loop" in a.methods else None
-    difference = [f"{judged} - open loop (score, success points)"] if judged else []
+    # the judged method against open loop and, where run, the plain rule (its teacher), on the same seeds
+    references = [m for m in ("open_loop", "object_anchored") if judged and m in a.methods and m != judged]
+    difference = [f"{judged} - {m.replace('_', ' ')} (score, success points)" for m in references]
     print("| " + " | ".join(["condition", *a.methods, *difference]) + " |")
     print("|---" * (len(a.methods) + 1 + len(difference)) + "|")
+    pooled: dict[str, list[np.ndarray]] = {ref: [] for ref in references}
     for text in a.conditions:
         cond, kwargs = parse_condition(text)
         res = {}
@@ -77,11 +80,22 @@ def main() -> None:
             r, rate = np.array(res[m].max_rewards), 100 * res[m].success_rate
             cells.append(f"{r.mean():.3f} ± {r.std(ddof=1) / np.sqrt(len(r)):.3f} ({rate:.0f} %)")
         diff = []
-        if difference:
-            d = np.array(res[judged].max_rewards) - np.array(res["open_loop"].max_rewards)
-            s = 100 * (res[judged].success_rate - res["open_loop"].success_rate)
-            diff = [f"{d.mean():+.3f} ± {d.std(ddof=1) / np.sqrt(len(d)):.3f}, {s:+.0f}"]
+        for ref in references:
+            d = np.array(res[judged].max_rewards) - np.array(res[ref].max_rewards)
+            s = 100 * (res[judged].success_rate - res[ref].success_rate)
+            won = np.array(res[judged].successes, float) - np.array(res[ref].successes, float)
+            pooled[ref].append(np.stack([d, won]))
+            diff.append(f"{d.mean():+.3f} ± {d.std(ddof=1) / np.sqrt(len(d)):.3f}, {s:+.0f}")
         print("| " + " | ".join([text, *cells, *diff]) + " |", flush=True)
+    for ref, parts in pooled.items():  # every condition's episodes together: one paired difference
+        if len(parts) > 1:
+            d, s = np.concatenate(parts, axis=1)
+            met = sum(p[0].mean() >= 0.03 for p in parts)
+            print(
+                f"pooled over {len(parts)} conditions ({d.size} paired episodes), {judged} - {ref}: score "
+                f"{d.mean():+.3f} ± {d.std(ddof=1) / np.sqrt(d.size):.3f}, success {100 * s.mean():+.1f} "
+                f"points; >= +0.03 in {met} of {len(parts)} conditions"
+            )
 
 
 if __name__ == "__main__":

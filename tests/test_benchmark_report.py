@@ -99,6 +99,19 @@ def test_delay_table_and_plot(tmp_path) -> None:
     # open loop loses 0.5 - 0.3, DCDP 0.8 - 0.7; the d = 0 cells are the main table's
     assert "| Open loop (H=8) | constant_2.0 | 0.500 ± 0.100 (0 ± 0 %) | 0.400" in t and "| +0.200 |" in t
     assert "| DCDP (H=8) | constant_2.0 | 0.800 ± 0.000 (50 ± 35 %) | - | 0.700" in t and "| +0.100 |" in t
+    # a folder whose only delayed rows are its own (no open loop of its own, like a gated folder) gets them
+    for d, score in [(0, 0.9), (4, 0.6)]:
+        r["cells"][cell_key("g", "gated_anchored", "constant_2.0", d)] = {
+            **cell("gated_anchored", "constant_2.0", 0.5, score),
+            "model": "g",
+            "inference_delay": d,
+        }
+    g = table_delay(r, "g")
+    assert "| Object-anchored chunk + completion gate (H=8, no corrector) | constant_2.0 | 0.900" in g
+    assert "| +0.300 |" in g and "Open loop" not in g  # no base known: nothing borrowed
+    r["models"]["g"] = IDENT  # the same base and seeds as "m": its open-loop rows stand in
+    g = table_delay(r, "g")
+    assert "| Open loop (H=8) | constant_2.0 | 0.500 ± 0.100 (0 ± 0 %) | 0.300" in g
     write_report(r, tmp_path / "RESULTS.md", tmp_path / "benchmark.json")
     assert "Table 3: a base that answers late" in (tmp_path / "RESULTS.md").read_text()
     assert "Real time (issue 23)" not in (tmp_path / "RESULTS.md").read_text()

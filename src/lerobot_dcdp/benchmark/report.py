@@ -293,17 +293,23 @@ def _score_line(ax, pts: list[tuple[float, dict]], method: str, metric: str = "s
 
 def table_delay(results: dict, label: str) -> str:
     """Score ± s.e. (success) per method and condition for each inference delay d, and the score each
-    method loses from d = 0 to the largest d."""
+    method loses from d = 0 to the largest d; a baseline the folder lacks is its base's (``baseline_cell``).
+    """
     cells = results["cells"]
     delays = _delays(cells, label)
     if len(delays) < 2:
         return ""
-    conds = [c for c in _conditions(cells, label) if _cell(cells, label, "open_loop", c, delays[-1])]
+    # a condition with any method of its own at the largest delay (a gated folder has no open-loop row)
+    conds = [
+        c
+        for c in _conditions(cells, label)
+        if any(_cell(cells, label, m, c, delays[-1]) for m in METHOD_NAMES)
+    ]
     head = ["method", "condition"] + [f"d = {d}" for d in delays] + [f"lost d=0 -> {delays[-1]}"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for m, name in METHOD_NAMES.items():
         for c in conds:
-            row = [_cell(cells, label, m, c, d) for d in delays]
+            row = [baseline_cell(results, label, m, c, d) for d in delays]
             if all(r is None for r in row[1:]):
                 continue
             lost = f"{row[0]['score'] - row[-1]['score']:+.3f}" if row[0] and row[-1] else "-"
@@ -312,8 +318,8 @@ def table_delay(results: dict, label: str) -> str:
 
 
 def plot_delay(results: dict, path: Path) -> bool:
-    """Score (± s.e.) vs inference delay per method, one panel per condition and model; False when no
-    delayed cell exists."""
+    """Score (± s.e.) vs inference delay per method: one row of panels per model, one column per condition
+    (an empty panel where the model has no delayed cell); False when no delayed cell exists."""
     try:
         import matplotlib
     except ImportError as err:  # an optional dependency
@@ -328,28 +334,34 @@ def plot_delay(results: dict, path: Path) -> bool:
     labels = sorted({c["model"] for c in cells.values() if c.get("inference_delay", 0)})
     if not labels:
         return False
-    panels = [
-        (label, c)
-        for label in labels
-        for c in _conditions(cells, label)
-        if any(_cell(cells, label, m, c, d) for m in METHOD_NAMES for d in _delays(cells, label) if d)
-    ]
-    fig, axes = plt.subplots(1, len(panels), figsize=(3.3 * len(panels), 3.4), squeeze=False)
-    for ax, (label, c) in zip(axes[0], panels, strict=True):
-        for m in METHOD_NAMES:
-            pts = [(d, _cell(cells, label, m, c, d)) for d in _delays(cells, label)]
-            pts = [(d, cell) for d, cell in pts if cell]
-            if len(pts) >= 2:
-                _score_line(ax, pts, m)
-        ax.set_title(f"{label}: {c}", fontsize=9)
-        ax.set_xlabel("inference delay d (control steps)")
-        ax.set_ylim(0, 1.02)
-        ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("score (avg max reward)")
-    axes[0][0].legend(fontsize=7)
+
+    def delayed(label: str, c: str) -> bool:
+        return any(_cell(cells, label, m, c, d) for m in METHOD_NAMES for d in _delays(cells, label) if d)
+
+    conds = [c for c in CONDITION_ORDER if any(delayed(label, c) for label in labels)]
+    fig, axes = plt.subplots(
+        len(labels), len(conds), figsize=(3.3 * len(conds), 3.0 * len(labels)), squeeze=False
+    )
+    for row, label in zip(axes, labels, strict=True):
+        for ax, c in zip(row, conds, strict=True):
+            if not delayed(label, c):
+                ax.axis("off")
+                continue
+            for m in METHOD_NAMES:
+                pts = [(d, baseline_cell(results, label, m, c, d)) for d in _delays(cells, label)]
+                pts = [(d, cell) for d, cell in pts if cell]
+                if len(pts) >= 2:
+                    _score_line(ax, pts, m)
+            ax.set_title(f"{label}: {c}", fontsize=9)
+            ax.set_xlabel("inference delay d (control steps)", fontsize=8)
+            ax.set_ylim(0, 1.02)
+            ax.grid(alpha=0.3)
+        first = next(ax for ax in row if ax.axison)
+        first.set_ylabel("score (avg max reward)")
+        first.legend(fontsize=7)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=90)
     plt.close(fig)
     return True
 
@@ -595,7 +607,8 @@ def write_report(results: dict, report: Path, json_path: Path, realtime_dir: Pat
                 "### Table 3: a base that answers late (`--policy.inference_delay=d`)",
                 "",
                 "The chunk used from step t was planned from the observation of step t-d; the entries for "
-                "the steps already past are skipped. Score ± s.e. (success rate ± s.e.).",
+                "the steps already past are skipped. Score ± s.e. (success rate ± s.e.); a baseline row the "
+                "folder lacks is its base's on the same seeds.",
                 "",
                 delayed,
                 "",
