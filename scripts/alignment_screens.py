@@ -418,31 +418,21 @@ def lead_in_range(args: argparse.Namespace, clip: float):
     return act, envs, seeds
 
 
-_SYNC_CHUNK = None
-
-
 def time_skip(args: argparse.Namespace, k: float):
-    """``--method`` with every chunk used from its entry ``k`` on, planned on time (``SyncPlanning._chunk``
-    patched: the plan-time references are this step's, as without a delay)."""
-    from lerobot_dcdp import planning
-
-    global _SYNC_CHUNK
-    _SYNC_CHUNK = _SYNC_CHUNK or planning.SyncPlanning._chunk
-    skip = int(k)
+    """``--method`` with every chunk used from its entry ``k`` on, planned on time: the folder's chunk source
+    asked for ``k`` more actions, the first ``k`` dropped (the plan-time references stay this step's)."""
     if args.delay:
         raise SystemExit("time_skip plans on time: leave --delay at 0")
-
-    def skipped(self, state, prepared, batch, mode):
-        if not skip:
-            return _SYNC_CHUNK(self, state, prepared, batch, mode)
-        state.at_plan = state.rep
-        state.anchor_plan = self.anchor.points(batch) if mode.anchored else None
-        state.chunk_delay = 0
-        length = min((mode.plan_length or self.source.chunk_length) + skip, self.source.max_length)
-        return self.source.chunk(prepared, length)[:, skip:]
-
-    planning.SyncPlanning._chunk = skipped
     policy, _, act, envs, seeds = _rollout(args, args.method)
+    source, skip = policy.source, int(k)
+    chunk = source.chunk
+
+    def skipped(prepared, length=None):
+        length = source.chunk_length if length is None else length
+        return chunk(prepared, min(length + skip, source.max_length))[:, skip:]
+
+    if skip:
+        source.chunk = skipped
     return act, envs, seeds
 
 
