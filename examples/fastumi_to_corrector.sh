@@ -9,9 +9,9 @@
 #     `lerobot-rollout --strategy.type=dagger` and turn it into a corrections dataset with
 #     `dcdp-dagger-to-corrections --base <base> ...` (docs/METHOD.md), then train on that with lerobot-train.
 #     Correct, do not drive: move the robot's own motion where the object went, let it run where nothing moved
-#     (a person driving with their own motions gives labels a corrector cannot use: docs/ANALYSIS.md, T1-T7).
+#     (a person driving with their own motions gives labels a corrector cannot use: docs/FINDINGS.md, "Teleoperated corrections").
 # Without ANCHOR the script converts the data, trains the base, and stops, saying so; it does not train the
-# paper's reconstruction recipe (measured to make bases worse: docs/ANALYSIS.md). Add it yourself with
+# paper's reconstruction recipe (measured to make bases worse: docs/FINDINGS.md). Add it yourself with
 # DCDP_FLAGS=--policy.correction=reconstruct ANCHOR=none if you want that row anyway.
 #
 # Usage: examples/fastumi_to_corrector.sh <fastumi dir> <work dir> [base pretrained_model dir]

@@ -25,7 +25,7 @@ from lerobot.policies.factory import get_policy_class, make_pre_post_processors 
 
 import lerobot_policy_dcdp  # noqa: E402, F401  (registers `dcdp` and `pusht_perturbed`)
 from lerobot_dcdp.benchmark.rollout import Condition, rollout  # noqa: E402
-from lerobot_dcdp.configuration_dcdp import EXECUTION_MODES  # noqa: E402
+from lerobot_dcdp.policy.configuration_dcdp import EXECUTION_MODES  # noqa: E402
 
 
 def sweep(

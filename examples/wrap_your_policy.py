@@ -5,7 +5,7 @@
    With the default ``--correction residual`` on plain demonstrations, stage 1 synthesises the object's
    motion after plan time and learns to carry the plan along with it: name the object's xy keypoints with
    ``--anchor-feature`` (a dataset recorded by ``dcdp-record-corrections`` needs no anchor). ``reconstruct``
-   is the paper's recipe, measured to make the base worse (docs/ANALYSIS.md);
+   is the paper's recipe, measured to make the base worse (docs/FINDINGS.md);
 3. the corrector is saved (``lerobot-eval --policy.path=OUT`` loads it) and run in every execution mode
    on one recorded episode: the actions it takes from the recorded observations, their distance to the
    recorded actions, and the time per step.
@@ -33,7 +33,7 @@ from lerobot.datasets.factory import resolve_delta_timestamps
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 
 import lerobot_policy_dcdp  # noqa: F401  (registers the `dcdp` policy type with LeRobot)
-from lerobot_dcdp.configuration_dcdp import CORRECTIONS, EXECUTION_MODES, DCDPConfig
+from lerobot_dcdp.policy.configuration_dcdp import CORRECTIONS, EXECUTION_MODES, DCDPConfig
 
 
 def train_corrector(

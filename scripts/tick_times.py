@@ -76,9 +76,9 @@ def run(
 ) -> dict:
     from lerobot.policies.utils import prepare_observation_for_inference
 
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
-    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
-    from lerobot_dcdp.robots import PushTSim, PushTSimConfig
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
+    from lerobot_dcdp.sim.robots import PushTSim, PushTSimConfig
 
     policy = DCDPPolicy.from_pretrained(policy_path).eval()
     policy.config.planning = planning

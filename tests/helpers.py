@@ -1,7 +1,11 @@
-"""Tiny, offline building blocks for the tests: datasets, random-init bases, DCDP configs and batches."""
+"""Tiny, offline building blocks for the tests: datasets, random-init bases, DCDP configs and batches, and
+the real CLIs run as a user runs them."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import torch
@@ -16,6 +20,98 @@ def policy_features(root: Path) -> tuple[dict, dict, dict]:
     out = {k: f for k, f in feats.items() if f.type is FeatureType.ACTION}
     inp = {k: f for k, f in feats.items() if k not in out}
     return inp, out, meta.stats
+
+
+#: Where the CLIs of this environment live (``lerobot-train``, ``lerobot-eval``, ``dcdp-*``).
+BIN = Path(sys.executable).parent
+#: The environment every CLI runs in: offline, one thread.
+CLI_ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
+
+
+def run(args: list[str], cwd: Path, ok: bool = True) -> subprocess.CompletedProcess:
+    """Run a CLI in :data:`CLI_ENV` (at most 10 min); ``ok``: assert it succeeded, else show its output."""
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=600, env=CLI_ENV, cwd=cwd)
+    if ok:
+        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-6000:]
+    return proc
+
+
+#: ``lerobot-rollout`` on a simulated clock (written out by :func:`sim_clock_rollout`).
+SIM_CLOCK_ROLLOUT = """
+\"\"\"``lerobot-rollout`` on a simulated clock: LeRobot's control loops (base and episodic strategies) and the
+``pusht_sim`` robot read a clock that advances only when a loop sleeps, by exactly what it sleeps, so every
+tick takes exactly 1 / fps and how many ticks a duration holds cannot depend on the machine's load.\"\"\"
+import sys
+import time
+import types
+
+import lerobot.rollout.strategies.base as base
+import lerobot.rollout.strategies.episodic as episodic
+from lerobot.scripts.lerobot_rollout import main
+
+import lerobot_dcdp.sim.robots.pusht_sim as pusht_sim
+
+
+class SimClock:
+    def __init__(self):
+        self.ns = 0  # integer nanoseconds: ticks of 1 / fps add up exactly
+
+    def perf_counter(self):
+        return self.ns / 1e9
+
+    def sleep(self, seconds):
+        self.ns += max(0, round(seconds * 1e9))
+
+
+clock = SimClock()
+shim = types.SimpleNamespace(perf_counter=clock.perf_counter, sleep=clock.sleep, time=time.time)
+for module in (base, episodic):
+    module.time, module.precise_sleep = shim, clock.sleep
+pusht_sim.time = shim  # PushTSim takes its real-time clock from here when it is built
+sys.argv[0] = "lerobot-rollout"
+sys.exit(main())
+"""
+
+
+def sim_clock_rollout(folder: Path) -> Path:
+    """Write an executable ``lerobot-rollout`` on a simulated clock (:data:`SIM_CLOCK_ROLLOUT`) into
+    ``folder``; it takes ``lerobot-rollout``'s flags."""
+    path = folder / "lerobot-rollout-sim-clock"
+    path.write_text(f"#!{sys.executable}\n{SIM_CLOCK_ROLLOUT}")
+    path.chmod(0o755)
+    return path
+
+
+def corrector_train_args(
+    base: Path, data: Path, out: Path, steps: int, save_freq: int, batch: int = 8
+) -> list[str]:
+    """``lerobot-train`` arguments of a tiny stage-1 run (the command a user types, shrunk)."""
+    return [
+        str(BIN / "lerobot-train"),
+        "--policy.type=dcdp",
+        f"--policy.base_policy_path={base}",
+        "--dataset.repo_id=local/test",
+        f"--dataset.root={data}",
+        "--policy.device=cpu",
+        "--policy.push_to_hub=false",
+        f"--output_dir={out}",
+        f"--steps={steps}",
+        f"--batch_size={batch}",
+        f"--save_freq={save_freq}",
+        "--log_freq=1",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        "--policy.feature_dim=32",
+        "--policy.n_heads=4",
+        # plain demonstrations + the default residual correction: stage 1 synthesises the block's motion
+        "--policy.anchor_feature=observation.environment_state",
+    ]
+
+
+def train_corrector(base: Path, data: Path, out: Path, steps: int = 6, extra: tuple[str, ...] = ()) -> Path:
+    """Train a tiny corrector around ``base`` with ``lerobot-train``; its last ``pretrained_model`` folder."""
+    run([*corrector_train_args(base, data, out, steps, steps), *extra], cwd=out.parent)
+    return out / "checkpoints" / "last" / "pretrained_model"
 
 
 def make_tiny_base(kind: str, out_dir: Path, dataset_root: Path, seed: int = 0, **overrides) -> Path:
@@ -80,7 +176,7 @@ def make_tiny_base(kind: str, out_dir: Path, dataset_root: Path, seed: int = 0, 
 def make_dcdp_config(base: Path, dataset_root: Path, **overrides):
     """A tiny DCDPConfig wired to ``base`` with the features of ``dataset_root``."""
     import lerobot_policy_dcdp  # noqa: F401
-    from lerobot_dcdp.configuration_dcdp import DCDPConfig
+    from lerobot_dcdp.policy.configuration_dcdp import DCDPConfig
 
     inp, out, _ = policy_features(dataset_root)
     inp = {k: v for k, v in inp.items() if v.type is not FeatureType.VISUAL}
@@ -105,7 +201,7 @@ def make_dcdp_config(base: Path, dataset_root: Path, **overrides):
 
 
 def make_dcdp_policy(base: Path, dataset_root: Path, seed: int = 0, **overrides):
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
 
     torch.manual_seed(seed)
     _, _, stats = policy_features(dataset_root)
@@ -117,7 +213,7 @@ def training_batches(policy, dataset_root: Path, batch_size: int = 16, seed: int
     from lerobot.datasets.factory import resolve_delta_timestamps
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+    from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
 
     cfg = policy.config
     meta = LeRobotDatasetMetadata("local/test", root=dataset_root)

@@ -10,7 +10,7 @@ import pytest
 import torch
 from helpers import env_observations, make_dcdp_policy
 
-from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
 
 
 def _policy(diffusion_base, demo_root, **kw):
@@ -95,12 +95,26 @@ def test_step_clock_gives_the_gated_anchoring_of_sync_planning(diffusion_base, d
     policy.close()
 
 
-class _GatedBase:
-    """Wraps the base's predict_action_chunk: the first call (an episode's first chunk) runs at once, every
-    later one blocks until the test opens ``gate``."""
+class _Clock:
+    """A controlled clock for ``planning_clock='wall'`` (``AsyncPlanning.clock``): it reads ``now`` and moves
+    only when the test moves it, so the tick period and planning time the policy measures, and the planning
+    lead it takes from them, cannot depend on the machine's load."""
 
-    def __init__(self, base) -> None:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class _GatedBase:
+    """Wraps the base's predict_action_chunk: the first call (an episode's first chunk) runs at once, taking
+    ``first_call_s`` on ``clock``; every later one blocks until the test opens ``gate`` (the wait's timeout
+    only guards against a hang)."""
+
+    def __init__(self, base, clock: _Clock, first_call_s: float = 0.0) -> None:
         self.inner = base.predict_action_chunk
+        self.clock, self.first_call_s = clock, first_call_s
         self.gate = threading.Event()
         self.calls = 0
         self.blocked_calls = 0
@@ -108,10 +122,19 @@ class _GatedBase:
 
     def __call__(self, batch):
         self.calls += 1
-        if self.calls > 1:
+        if self.calls == 1:
+            self.clock.now += self.first_call_s
+        else:
             self.blocked_calls += 1
             assert self.gate.wait(timeout=120), "the test never opened the gate"
         return self.inner(batch)
+
+
+def _gated(policy, first_call_s: float = 0.0) -> tuple[_GatedBase, _Clock]:
+    """Give ``policy``'s async planning a controlled clock and its base a gate."""
+    clock = _Clock()
+    policy._async.clock = clock
+    return _GatedBase(policy.base, clock, first_call_s), clock
 
 
 def test_wall_clock_ticks_never_wait_for_a_slow_base(diffusion_base, demo_root) -> None:
@@ -122,24 +145,27 @@ def test_wall_clock_ticks_never_wait_for_a_slow_base(diffusion_base, demo_root) 
     policy = _policy(
         diffusion_base, demo_root, n_action_steps=horizon, execution="open_loop", planning="async"
     )
-    gated = _GatedBase(policy.base)
+    gated, clock = _gated(policy, first_call_s=0.125)  # the first chunk takes 0.125 s to plan
     pre, _ = make_dcdp_pre_post_processors(policy.config)
     observations = [pre(dict(o)) for o in env_observations(1, 16)]
     torch.manual_seed(3)
     policy.reset()
     first = None
     for t in range(12):  # the base is blocked from its second call on: no tick may wait for it
+        clock.now += 0.25 if t else 0.0  # a 4 Hz loop
         action = policy.select_action(dict(observations[t]))
         if t == 0:
             first = policy.planned_chunk.clone()
         assert policy.last_step == min(t, horizon - 1)
         torch.testing.assert_close(action, first[:, min(t, horizon - 1)])
     assert gated.blocked_calls == 1 and policy._async.planner.pending
+    # submitted at tick 2: ceil(0.125 s planning / 0.3375 s smoothed tick period) + 1 = 2 ticks before the
+    # first chunk's end
     t_obs = policy._async.planner.t_obs
-    assert 1 <= t_obs < horizon  # planned during the first chunk (how early depends on measured times)
+    assert t_obs == horizon - 2
     gated.gate.set()
     job_future = policy._async.planner._job[0]
-    planned = job_future.result(timeout=120)[0]  # the test waits for the worker; the policy never does
+    planned = job_future.result(timeout=120)[0]  # the test waits for the worker (the timeout: a hang only)
     action = policy.select_action(dict(observations[12]))
     age = 12 - t_obs
     assert policy.last_step == 0
@@ -157,7 +183,7 @@ def test_a_chunk_late_for_its_expected_age_is_prepared_on_the_tick(diffusion_bas
     and its actions are those of the chunk's right entries."""
     horizon = 4
     policy = _policy(diffusion_base, demo_root, n_action_steps=horizon, execution="dcdp", planning="async")
-    gated = _GatedBase(policy.base)
+    gated, _ = _gated(policy)  # a clock that never moves: no planning time measured, a lead of 1 tick
     pre, _ = make_dcdp_pre_post_processors(policy.config)
     observations = [pre(dict(o)) for o in env_observations(1, 14)]
     threads = []
@@ -173,9 +199,11 @@ def test_a_chunk_late_for_its_expected_age_is_prepared_on_the_tick(diffusion_bas
     for t in range(12):  # the second chunk is held back well past the end of the first
         policy.select_action(dict(observations[t]))
     gated.gate.set()
-    planned, _, prepared = policy._async.planner._job[0].result(timeout=120)
+    planned, _, prepared = policy._async.planner._job[0].result(timeout=120)  # the timeout: a hang only
     t_obs = policy._async.planner.t_obs
-    assert prepared is not None and prepared[0] < 12 - t_obs  # prepared for an earlier start
+    assert t_obs == horizon - 1  # submitted one tick before the first chunk's end ...
+    # ... so the worker prepared it to start 1 step after its observation; it arrives 12 - 3 = 9 steps after
+    assert prepared is not None and prepared[0] == 1
     action = policy.select_action(dict(observations[12]))
     assert threads[0] == "MainThread" and threads[1].startswith("dcdp-planner") and threads[2] == "MainThread"
     age = 12 - t_obs
@@ -200,7 +228,7 @@ def test_a_chunk_older_than_its_length_starts_at_its_last_step(diffusion_base, d
     policy = _policy(
         diffusion_base, demo_root, n_action_steps=horizon, execution="open_loop", planning="async"
     )
-    gated = _GatedBase(policy.base)
+    gated, _ = _gated(policy)  # a clock that never moves: a lead of 1 tick
     pre, _ = make_dcdp_pre_post_processors(policy.config)
     length = policy.source.max_length
     ticks = length + horizon + 2
@@ -210,7 +238,7 @@ def test_a_chunk_older_than_its_length_starts_at_its_last_step(diffusion_base, d
     for t in range(ticks):
         policy.select_action(dict(observations[t]))
     t_obs = policy._async.planner.t_obs
-    assert ticks - t_obs > length  # the chunk is older than it is long
+    assert t_obs == horizon - 1 and ticks - t_obs > length  # the chunk is older than it is long
     gated.gate.set()
     planned = policy._async.planner._job[0].result(timeout=120)[0]
     action = policy.select_action(dict(observations[ticks]))
@@ -244,7 +272,7 @@ class _ScriptedPlanner:
         self.job = (t_obs, context)
 
     def take(self, wait: bool):
-        from lerobot_dcdp.planner import PlannedChunk
+        from lerobot_dcdp.runtime.planner import PlannedChunk
 
         t_obs, context = self.job
         self.job = None
@@ -263,7 +291,7 @@ def test_a_remote_base_plans_every_chunk_and_its_weights_are_never_read(diffusio
     planner is attached; then the episode's first chunk too comes from it, ``lead`` steps ahead."""
     import shutil
 
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
 
     trained = _policy(diffusion_base, demo_root, n_action_steps=4, execution="open_loop")
     trained.save_pretrained(tmp_path / "corrector")
@@ -379,7 +407,7 @@ def test_planner_priority_idle_runs_the_base_under_sched_idle(diffusion_base, de
 
 
 def test_planner_cpus_must_leave_the_control_loop_a_cpu() -> None:
-    from lerobot_dcdp.planner import pin_apart
+    from lerobot_dcdp.runtime.planner import pin_apart
 
     allowed = os.sched_getaffinity(0)
     with pytest.raises(ValueError, match="leave no CPU to the control loop"):

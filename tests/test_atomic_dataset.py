@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_dcdp.atomic_dataset import staged_dir
+from lerobot_dcdp.data.atomic_dataset import staged_dir
 
 
 def test_a_failed_build_leaves_the_old_copy_and_no_temp(tmp_path: Path) -> None:

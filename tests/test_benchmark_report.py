@@ -114,7 +114,7 @@ def test_delay_table_and_plot(tmp_path) -> None:
     assert "| Open loop (H=8) | constant_2.0 | 0.500 ± 0.100 (0 ± 0 %) | 0.300" in g
     write_report(r, tmp_path / "RESULTS.md", tmp_path / "benchmark.json")
     assert "Table 3: a base that answers late" in (tmp_path / "RESULTS.md").read_text()
-    assert "Real time (issue 23)" not in (tmp_path / "RESULTS.md").read_text()
+    assert "## Real time" not in (tmp_path / "RESULTS.md").read_text()
     assert (tmp_path / "score_vs_delay.png").stat().st_size > 0
 
 
@@ -123,7 +123,7 @@ def test_the_report_shows_the_real_time_summaries_unchanged(tmp_path) -> None:
     order, headings moved down); an empty or absent folder adds nothing."""
     folder = tmp_path / "realtime"
     write_report(results(), tmp_path / "RESULTS.md", tmp_path / "benchmark.json", folder)
-    assert "Real time (issue 23)" not in (tmp_path / "RESULTS.md").read_text()
+    assert "## Real time" not in (tmp_path / "RESULTS.md").read_text()
     folder.mkdir()
     (folder / "b_deadlines.md").write_text(
         "# Deadlines\n\n```\n# a comment in a command\n```\n| mode | ticks |\n|---|---|\n| dcdp | 599 |\n"
@@ -131,7 +131,7 @@ def test_the_report_shows_the_real_time_summaries_unchanged(tmp_path) -> None:
     (folder / "a_clients.md").write_text("corrector `x`\n\n| fps | client |\n|---|---|\n| 10 | stock |\n")
     write_report(results(), tmp_path / "RESULTS.md", tmp_path / "benchmark.json", folder)
     text = (tmp_path / "RESULTS.md").read_text()
-    assert "## Real time (issue 23)" in text and "| 10 | stock |" in text and "| dcdp | 599 |" in text
+    assert "## Real time: asynchronous planning" in text and "| 10 | stock |" in text and "| dcdp | 599 |" in text
     assert "\n# a comment in a command\n" in text  # a code block is left as it is
     order = [text.index(h) for h in ("### `a_clients.md`", "### `b_deadlines.md`", "#### Deadlines")]
     assert order == sorted(order)

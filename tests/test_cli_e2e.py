@@ -3,56 +3,32 @@
 from __future__ import annotations
 
 import json
-import os
 import shutil
+import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 import torch
+from helpers import BIN, CLI_ENV, corrector_train_args, run, train_corrector
 from safetensors.torch import load_file, save_file
 
-BIN = Path(sys.executable).parent
-ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
 OBS = "environment_state_agent_pos"
 
-
-def run(args: list[str], cwd: Path, ok: bool = True) -> subprocess.CompletedProcess:
-    proc = subprocess.run(args, capture_output=True, text=True, timeout=600, env=ENV, cwd=cwd)
-    if ok:
-        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-6000:]
-    return proc
-
-
-def train_args(base: Path, data: Path, out: Path, steps: int, save_freq: int, batch: int = 8) -> list[str]:
-    """``lerobot-train`` arguments of a tiny stage-1 run (the command a user types, shrunk)."""
-    return [
-        str(BIN / "lerobot-train"),
-        "--policy.type=dcdp",
-        f"--policy.base_policy_path={base}",
-        "--dataset.repo_id=local/test",
-        f"--dataset.root={data}",
-        "--policy.device=cpu",
-        "--policy.push_to_hub=false",
-        f"--output_dir={out}",
-        f"--steps={steps}",
-        f"--batch_size={batch}",
-        f"--save_freq={save_freq}",
-        "--log_freq=1",
-        "--num_workers=0",
-        "--wandb.enable=false",
-        "--policy.feature_dim=32",
-        "--policy.n_heads=4",
-        # plain demonstrations + the default residual correction: stage 1 synthesises the block's motion
-        "--policy.anchor_feature=observation.environment_state",
-    ]
-
-
-def train(base: Path, data: Path, out: Path, steps: int = 6, extra: tuple[str, ...] = ()) -> Path:
-    run([*train_args(base, data, out, steps, steps), *extra], cwd=out.parent)
-    return out / "checkpoints" / "last" / "pretrained_model"
+#: ``lerobot-train`` that SIGKILLs itself right after its first checkpoint is complete (``last`` updated):
+#: a run killed mid-run at a known point, no clean shutdown, whatever the machine's speed.
+KILLED_AFTER_FIRST_CHECKPOINT = """
+import os, signal, sys
+import lerobot.scripts.lerobot_train as lerobot_train
+update = lerobot_train.update_last_checkpoint
+def update_then_die(checkpoint_dir):
+    update(checkpoint_dir)
+    os.kill(os.getpid(), signal.SIGKILL)
+lerobot_train.update_last_checkpoint = update_then_die
+sys.argv[0] = "lerobot-train"
+lerobot_train.main()
+"""
 
 
 def evaluate(policy_dir: Path, out: Path, *extra: str, ok: bool = True) -> subprocess.CompletedProcess:
@@ -95,7 +71,7 @@ def test_train_help_describes_every_dcdp_option() -> None:
     lists its flat flag."""
     import dataclasses
 
-    from lerobot_dcdp import config_options
+    from lerobot_dcdp.policy import config_options
 
     proc = run([str(BIN / "lerobot-train"), "--policy.type=dcdp", "--help"], cwd=Path.cwd())
     for group in config_options.OPTION_GROUPS:
@@ -106,24 +82,35 @@ def test_train_help_describes_every_dcdp_option() -> None:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["diffusion", "act"])
-def test_train_then_eval(kind, diffusion_base, act_base, demo_root, tmp_path) -> None:
-    base = diffusion_base if kind == "diffusion" else act_base
-    ckpt = train(base, demo_root, tmp_path / "train")
+def test_train_then_eval(kind, request, demo_root, tmp_path) -> None:
+    base = request.getfixturevalue(f"{kind}_base")
+    # the diffusion corrector is the session's shared lerobot-train run (same command); ACT's is trained here
+    if kind == "diffusion":
+        ckpt = request.getfixturevalue("trained_corrector")
+    else:
+        ckpt = train_corrector(base, demo_root, tmp_path / "train")
     cfg = json.loads((ckpt / "config.json").read_text())
     assert cfg["type"] == "dcdp" and cfg["base_policy_type"] == kind and len(cfg["base_weights_sha256"]) == 64
     weights = load_file(ckpt / "model.safetensors")
     base_weights = load_file(base / "model.safetensors")
     assert not set(weights) & set(base_weights)
     # the checkpoint normalises with the base's statistics, not the dataset's: the base's pre-processor,
-    # behind the step that splits a robot's flattened state (for lerobot-rollout)
+    # behind the step that splits a robot's flattened state (for lerobot-rollout) and the one that checks
+    # every input's shape before LeRobot's normaliser sees it
     name = "policy_preprocessor.json"
     saved, base_pre = (json.loads((d / name).read_text())["steps"] for d in (ckpt, base))
-    assert saved[0] == {
-        "registry_name": "dcdp_split_state",
-        "config": {"splits": [["observation.state", 2], ["observation.environment_state", 16]]},
-    }
-    assert len(saved) == len(base_pre) + 1
-    for ours, theirs in zip(saved[1:], base_pre, strict=True):
+    assert saved[:2] == [
+        {
+            "registry_name": "dcdp_split_state",
+            "config": {"splits": [["observation.state", 2], ["observation.environment_state", 16]]},
+        },
+        {
+            "registry_name": "dcdp_check_observation",
+            "config": {"shapes": {"observation.state": [2], "observation.environment_state": [16]}},
+        },
+    ]
+    assert len(saved) == len(base_pre) + 2
+    for ours, theirs in zip(saved[2:], base_pre, strict=True):
         assert ours["config"] == theirs["config"] and ours["registry_name"] == theirs["registry_name"]
         assert ("state_file" in ours) == ("state_file" in theirs)
         if "state_file" in theirs:
@@ -152,19 +139,26 @@ def _harness_max_rewards(ckpt: Path, mode: str) -> list[float]:
 
 @pytest.mark.slow
 def test_killed_training_resumes_from_checkpoint(diffusion_base, demo_root, tmp_path) -> None:
+    """A run SIGKILLed mid-run (right after its step-2 checkpoint, 99998 steps to go) resumes from that
+    checkpoint with ``--resume`` and trains on from it."""
     out = tmp_path / "train"
-    args = train_args(diffusion_base, demo_root, out, steps=100000, save_freq=2)
-    proc = subprocess.Popen(args, cwd=tmp_path, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 300
-    first = out / "checkpoints" / "000002" / "training_state" / "training_step.json"
-    while not first.exists() and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.5)
-    time.sleep(1.0)
-    proc.kill()  # SIGKILL mid-run: no clean shutdown
-    proc.wait()
-    assert first.exists()
+    args = corrector_train_args(diffusion_base, demo_root, out, steps=100000, save_freq=2)
+    killed = subprocess.run(
+        [sys.executable, "-c", KILLED_AFTER_FIRST_CHECKPOINT, *args[1:]],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=CLI_ENV,
+        cwd=tmp_path,
+    )
+    assert killed.returncode == -signal.SIGKILL, killed.stdout[-3000:] + killed.stderr[-6000:]
     last = (out / "checkpoints" / "last").resolve()
+    assert last.name == "000002" and sorted(p.name for p in (out / "checkpoints").iterdir()) == [
+        "000002",
+        "last",
+    ]
     step = json.loads((last / "training_state" / "training_step.json").read_text())["step"]
+    assert step == 2
     before = load_file(last / "pretrained_model" / "model.safetensors")
     run(
         [
@@ -182,15 +176,16 @@ def test_killed_training_resumes_from_checkpoint(diffusion_base, demo_root, tmp_
 
 
 @pytest.mark.slow
-def test_eval_refuses_a_changed_base(diffusion_base, demo_root, tmp_path) -> None:
+def test_eval_refuses_a_changed_base(trained_corrector, diffusion_base, tmp_path) -> None:
+    """The corrector pointed at a base whose weights differ from those it was trained against (a copy of its
+    base with one tensor nudged) is refused by lerobot-eval."""
     base = tmp_path / "base"
     shutil.copytree(diffusion_base, base)
-    ckpt = train(base, demo_root, tmp_path / "train", steps=2)
     weights = load_file(base / "model.safetensors")
     name = sorted(weights)[0]
     weights[name] = weights[name] + 1e-3
     save_file(weights, base / "model.safetensors")
-    proc = evaluate(ckpt, tmp_path / "eval", ok=False)
+    proc = evaluate(trained_corrector, tmp_path / "eval", f"--policy.base_policy_path={base}", ok=False)
     assert proc.returncode != 0
     assert "base_weights_sha256 mismatch" in proc.stdout + proc.stderr
 
@@ -209,7 +204,7 @@ def test_accelerate_two_cpu_processes(diffusion_base, demo_root, tmp_path) -> No
             "--num_machines=1",
             "--mixed_precision=no",
             "--dynamo_backend=no",
-            *train_args(diffusion_base, demo_root, out, steps=3, save_freq=3, batch=4),
+            *corrector_train_args(diffusion_base, demo_root, out, steps=3, save_freq=3, batch=4),
             "--policy.use_diff_cross_attention=false",
             "--policy.use_diff_loss=false",
         ],
@@ -224,8 +219,8 @@ def test_quantile_normalised_base_through_the_clis(demo_root, tmp_path) -> None:
     wrapper maps its actions with the base's own quantiles, and every execution mode runs in lerobot-eval."""
     from helpers import tiny_train_flags
 
-    from lerobot_dcdp.correction import normalize
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.model.correction import normalize
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
 
     mapping = '{"VISUAL": "MEAN_STD", "STATE": "QUANTILE10", "ENV": "QUANTILES", "ACTION": "QUANTILES"}'
     run(
@@ -247,7 +242,7 @@ def test_quantile_normalised_base_through_the_clis(demo_root, tmp_path) -> None:
         cwd=tmp_path,
     )
     base = tmp_path / "act" / "checkpoints" / "last" / "pretrained_model"
-    ckpt = train(base, demo_root, tmp_path / "train", steps=2)
+    ckpt = train_corrector(base, demo_root, tmp_path / "train", steps=2)
     policy = DCDPPolicy.from_pretrained(ckpt)
     mode, stats = policy.normalizer.stats["action"]
     assert mode == "QUANTILES"
@@ -260,9 +255,8 @@ def test_quantile_normalised_base_through_the_clis(demo_root, tmp_path) -> None:
 
 
 @pytest.mark.slow
-def test_a_state_corrector_in_a_pixel_env_names_the_obs_type(diffusion_base, demo_root, tmp_path) -> None:
-    ckpt = train(diffusion_base, demo_root, tmp_path / "train", steps=1)
-    proc = evaluate(ckpt, tmp_path / "eval", "--env.obs_type=pixels_agent_pos", ok=False)
+def test_a_state_corrector_in_a_pixel_env_names_the_obs_type(trained_corrector, tmp_path) -> None:
+    proc = evaluate(trained_corrector, tmp_path / "eval", "--env.obs_type=pixels_agent_pos", ok=False)
     assert proc.returncode != 0
     lines = [ln for ln in (proc.stdout + proc.stderr).splitlines() if "Error" in ln and ": " in ln]
     assert lines and "--env.obs_type=environment_state_agent_pos" in lines[-1], (lines, proc.stderr[-3000:])

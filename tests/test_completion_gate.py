@@ -8,14 +8,14 @@ import pytest
 import torch
 from helpers import env_observations, make_dcdp_policy
 
-from lerobot_dcdp.completion_gate import (
+from lerobot_dcdp.model.completion_gate import (
     build_gate,
     completion_labels,
     gate_applies,
     gated_action,
     travel_scale,
 )
-from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
 
 
 def test_labels_mark_the_frames_near_their_episodes_last_frame() -> None:
@@ -102,8 +102,8 @@ def test_a_gate_that_says_done_runs_the_plan_and_one_that_says_not_corrects(diff
 def test_fit_cli_writes_a_corrector_whose_gate_knows_the_episode_ends(diffusion_base, demo_root, tmp_path):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_dcdp.fit_completion_gate import gate_data, main
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.train.fit_completion_gate import gate_data, main
 
     policy = make_dcdp_policy(
         diffusion_base,
@@ -194,10 +194,10 @@ def test_fit_cli_around_a_bare_base_writes_a_gated_anchoring_folder(
 ) -> None:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_dcdp.fit_completion_gate import gate_data, main
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
-    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
-    from lerobot_dcdp.scene_lead import tracker_noise
+    from lerobot_dcdp.model.scene_lead import tracker_noise
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
+    from lerobot_dcdp.train.fit_completion_gate import gate_data, main
 
     key = "observation.environment_state"
     data = ["--repo-id", "local/test", "--root", str(demo_root)]

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_dcdp.correction import (
+from lerobot_dcdp.model.correction import (
     from_unit_range,
     sliding_windows,
     state_dict_sha256,
     temporal_ensemble_step,
     to_unit_range,
 )
-from lerobot_dcdp.pusht.geometry import GOAL_POSE, clip_offset, densify, keypoint_error, keypoints
+from lerobot_dcdp.sim.pusht_geometry import GOAL_POSE, clip_offset, densify, keypoint_error, keypoints
 
 
 def test_unit_range_round_trip_and_bounds() -> None:

@@ -14,7 +14,7 @@ import pytest
 import torch
 from helpers import tiny_train_flags
 
-from lerobot_dcdp.dagger_corrections import chunk_starts
+from lerobot_dcdp.data.dagger_corrections import chunk_starts
 
 BIN = Path(sys.executable).parent
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
@@ -34,8 +34,8 @@ def _record_dagger_like(root: Path, episodes: int = 2, length: int = 24) -> None
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
     from lerobot.utils.feature_utils import hw_to_dataset_features
 
-    from lerobot_dcdp.robots import PushTSim, PushTSimConfig
-    from lerobot_dcdp.teleoperators import PushTExpert, PushTExpertConfig
+    from lerobot_dcdp.sim.robots import PushTSim, PushTSimConfig
+    from lerobot_dcdp.sim.teleoperators import PushTExpert, PushTExpertConfig
 
     robot = PushTSim(PushTSimConfig(calibration_dir=root.parent / "calib", realtime=False, seed=3))
     features = {
@@ -130,7 +130,7 @@ def test_a_dagger_recording_becomes_corrections_that_train(diffusion_base, tmp_p
 
 
 def test_a_recording_without_interventions_is_refused(diffusion_base, demo_root, tmp_path) -> None:
-    from lerobot_dcdp.dagger_corrections import dagger_to_corrections
+    from lerobot_dcdp.data.dagger_corrections import dagger_to_corrections
 
     with pytest.raises(ValueError, match="record it with lerobot-rollout --strategy.type=dagger"):
         dagger_to_corrections(diffusion_base, "local/test", demo_root, "x/y", tmp_path / "out")

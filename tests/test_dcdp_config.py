@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from helpers import make_dcdp_config, make_dcdp_policy
 
-from lerobot_dcdp.configuration_dcdp import DCDPConfig
+from lerobot_dcdp.policy.configuration_dcdp import DCDPConfig
 
 
 def test_missing_base_is_refused() -> None:
@@ -59,7 +59,7 @@ def test_each_check_reads_options_of_the_config() -> None:
     import dataclasses
     import inspect
 
-    from lerobot_dcdp import config_checks
+    from lerobot_dcdp.policy import config_checks
 
     names = {f.name for f in dataclasses.fields(DCDPConfig)}
     for check in config_checks.CHECKS:
@@ -113,7 +113,7 @@ def test_a_relative_base_missing_here_names_the_folder_and_the_fix(demo_root, tm
 def test_feature_mismatch_names_the_feature(diffusion_base, demo_root) -> None:
     from lerobot.configs.types import FeatureType, PolicyFeature
 
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
 
     cfg = make_dcdp_config(diffusion_base, demo_root)
     cfg.input_features["observation.environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(10,))
@@ -131,10 +131,10 @@ def test_feature_mismatch_names_the_feature(diffusion_base, demo_root) -> None:
 
 
 def test_changed_base_weights_are_refused(diffusion_base, demo_root) -> None:
-    from lerobot_dcdp.modeling_dcdp import BaseMismatchError
+    from lerobot_dcdp.policy.modeling_dcdp import BaseMismatchError
 
     cfg = make_dcdp_config(diffusion_base, demo_root, base_weights_sha256="0" * 64)
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
 
     with pytest.raises(BaseMismatchError, match="base_weights_sha256 mismatch"):
         DCDPPolicy(cfg)

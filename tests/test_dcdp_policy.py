@@ -10,9 +10,9 @@ from helpers import env_observations, make_dcdp_policy, training_batches
 from lerobot.policies.factory import get_policy_class
 from safetensors.torch import load_file
 
-from lerobot_dcdp.correction import from_unit_range, sliding_windows, temporal_ensemble_step
-from lerobot_dcdp.modeling_dcdp import DCDPPolicy
-from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+from lerobot_dcdp.model.correction import from_unit_range, sliding_windows, temporal_ensemble_step
+from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
+from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
 
 
 def normalised_observations(policy, n_envs: int, steps: int, seed: int = 0) -> list[dict]:

@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 from lerobot.envs.configs import EnvConfig
 
-from lerobot_dcdp.envs.pusht_perturbed import (
+from lerobot_dcdp.sim.envs.pusht_perturbed import (
     DEFAULT_DIRECTIONS_DEG,
     GYM_ID,
     BlockPerturbation,
     PushTPerturbedEnvConfig,
     make_perturbed_env,
 )
-from lerobot_dcdp.pusht.geometry import ARENA_HI, ARENA_LO, block_vertices
+from lerobot_dcdp.sim.pusht_geometry import ARENA_HI, ARENA_LO, block_vertices
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent

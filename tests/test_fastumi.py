@@ -9,9 +9,9 @@ import h5py
 import numpy as np
 import pytest
 
-from lerobot_dcdp.fastumi import convert as convert_mod
-from lerobot_dcdp.fastumi.convert import compose_pose, convert_fastumi, main, relative_pose
-from lerobot_dcdp.fastumi.reader import (
+from lerobot_dcdp.data.fastumi import convert as convert_mod
+from lerobot_dcdp.data.fastumi.convert import compose_pose, convert_fastumi, main, relative_pose
+from lerobot_dcdp.data.fastumi.reader import (
     FastUMIFormatError,
     find_episode_files,
     inspect_dataset,

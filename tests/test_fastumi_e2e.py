@@ -9,7 +9,7 @@ from helpers import tiny_train_flags
 from test_cli_e2e import BIN, run
 from test_fastumi import write_episode
 
-from lerobot_dcdp.fastumi.convert import convert_fastumi
+from lerobot_dcdp.data.fastumi.convert import convert_fastumi
 
 
 @pytest.mark.slow

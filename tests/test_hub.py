@@ -13,8 +13,8 @@ from helpers import make_dcdp_policy
 from huggingface_hub import HfApi
 from safetensors.torch import load_file
 
-from lerobot_dcdp.modeling_dcdp import DCDPPolicy
-from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
+from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
 
 
 @pytest.fixture
@@ -86,7 +86,7 @@ def test_push_uploads_the_corrector_only_and_it_loads_back(diffusion_base, demo_
     card = (repo / "README.md").read_text()
     assert policy.config.base_weights_sha256 in card and "lerobot-eval --policy.path=user/dcdp-tiny" in card
 
-    from lerobot_dcdp.configuration_dcdp import DCDPConfig
+    from lerobot_dcdp.policy.configuration_dcdp import DCDPConfig
 
     stored = DCDPConfig.from_pretrained(repo)
     assert stored.base_policy_path == "user/tiny-base"
@@ -99,8 +99,8 @@ def test_push_uploads_the_corrector_only_and_it_loads_back(diffusion_base, demo_
 
 
 def test_model_card_says_whether_a_completion_gate_is_fitted() -> None:
-    from lerobot_dcdp.configuration_dcdp import DCDPConfig
-    from lerobot_dcdp.model_card import make_model_card
+    from lerobot_dcdp.policy.configuration_dcdp import DCDPConfig
+    from lerobot_dcdp.policy.model_card import make_model_card
 
     plain = DCDPConfig(base_policy_path="x/y", device="cpu")
     assert "completion gate" not in str(make_model_card(plain, "0" * 64, "local/test"))

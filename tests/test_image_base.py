@@ -6,16 +6,12 @@ from __future__ import annotations
 import json
 
 import pytest
-from helpers import tiny_train_flags
-from test_cli_e2e import BIN, run
-
-from lerobot_dcdp.pusht.demos import record_demonstrations
+from helpers import BIN, run, tiny_train_flags
 
 
 @pytest.mark.slow
-def test_image_base_and_image_corrector_train_and_evaluate(tmp_path) -> None:
-    data = tmp_path / "img"
-    record_demonstrations(data, "local/img", episodes=1, seed=3, images=True, keypoints=False, progress=False)
+def test_image_base_and_image_corrector_train_and_evaluate(image_demo_root, tmp_path) -> None:
+    data = image_demo_root
     run(
         [
             str(BIN / "lerobot-train"),
@@ -36,6 +32,7 @@ def test_image_base_and_image_corrector_train_and_evaluate(tmp_path) -> None:
     ckpt = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
     assert "observation.image" in json.loads((ckpt / "config.json").read_text())["input_features"]
     _eval_one_image_episode(ckpt, tmp_path / "eval", "--env.type=pusht", "--env.episode_length=8")
+    _record_image_corrections(ckpt, tmp_path / "corrections")
 
     # the corrector on images: ResNet18 per-frame backbone (random weights, nothing downloaded)
     run(
@@ -86,16 +83,15 @@ def _eval_one_image_episode(policy_dir, out, *flags: str) -> None:
 
 
 @pytest.mark.slow
-def test_stock_vqbet_base_is_wrapped_generically(tmp_path) -> None:
+def test_stock_vqbet_base_is_wrapped_generically(image_demo_root, tmp_path) -> None:
     """LeRobot's third chunking policy: a stock VQ-BeT (one image + state, 5-frame history) trained by
     lerobot-train, wrapped with no VQ-BeT-specific code; open loop through the wrapper takes the base's own
     select_action actions, and every execution mode runs in lerobot-eval."""
     import torch
 
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
 
-    data = tmp_path / "img"
-    record_demonstrations(data, "local/img", episodes=1, seed=3, images=True, keypoints=False, progress=False)
+    data = image_demo_root
     run(
         [
             str(BIN / "lerobot-train"),
@@ -163,3 +159,40 @@ def test_stock_vqbet_base_is_wrapped_generically(tmp_path) -> None:
             "--env.magnitude=2",
             "--env.episode_length=8",
         )
+
+
+def _record_image_corrections(base, root) -> None:
+    """``dcdp-record-corrections`` around the image base under drift: the frames are stored as video beside
+    the agent position and the simulator's keypoints (the anchoring teacher's labels), and the labels move the
+    plan with the block (privileged at recording time only)."""
+    import numpy as np
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    run(
+        [
+            str(BIN / "dcdp-record-corrections"),
+            f"--base={base}",
+            f"--root={root}",
+            "--repo-id=local/img_corr",
+            "--episodes=2",
+            "--max-steps=12",
+            "--static-fraction=0",
+            "--max-magnitude=2.5",
+            "--anchor-feature=observation.environment_state",
+            "--execution=open_loop",  # the base's stale chunks drive; the labels carry them with the block
+            "--env.type=pusht_perturbed",
+            "--env.obs_type=pixels_environment_state_agent_pos",
+        ],
+        cwd=root.parent,
+    )
+    ds = LeRobotDataset("local/img_corr", root=root)
+    feats = ds.meta.features
+    assert feats["observation.image"]["dtype"] == "video"
+    assert tuple(feats["observation.image"]["shape"]) == (96, 96, 3)
+    assert tuple(feats["observation.environment_state"]["shape"]) == (16,)
+    assert ds.num_episodes == 2 and ds.num_frames == 24
+    frame = ds[5]
+    assert frame["observation.image"].shape == (3, 96, 96) and frame["observation.image"].max() > 0.5
+    labels = np.stack([ds[i]["action"].numpy() for i in range(ds.num_frames)])
+    executed = np.stack([ds[i]["executed_action"].numpy() for i in range(ds.num_frames)])
+    assert np.abs(labels - executed).max() > 0.5  # the teacher moved the stale plan with the drifting block

@@ -8,8 +8,9 @@ import pytest
 import torch
 from helpers import env_observations, make_dcdp_policy
 
-from lerobot_dcdp.chunk_sources import ChunkSource
-from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+from lerobot_dcdp.policy.configuration_dcdp import DCDPConfig
+from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
+from lerobot_dcdp.runtime.chunk_sources import ChunkSource
 
 H = 8
 
@@ -114,21 +115,36 @@ def test_corrections_measure_change_since_the_observation_planned_from(execution
                 torch.testing.assert_close(policy.state.at_plan, rep_then)
 
 
-@pytest.mark.parametrize("execution", ["open_loop", "closed_loop", "object_anchored", "dcdp"])
-def test_delay_0_is_the_default_path(execution, diffusion_base, demo_root) -> None:
-    """An explicit inference_delay=0 takes the undelayed path: same actions, bit for bit, as the default."""
-    kw = dict(execution=execution, anchor_feature="observation.environment_state")
-    a = make_dcdp_policy(diffusion_base, demo_root, **kw).eval()
-    b = make_dcdp_policy(diffusion_base, demo_root, inference_delay=0, **kw).eval()
-    pre, _ = make_dcdp_pre_post_processors(a.config)
-    obs = [pre(o) for o in env_observations(2, 10)]
-    for policy in (a, b):
-        policy.reset()
-    for o in obs:
-        torch.manual_seed(1)
-        x = a.select_action(dict(o))
-        torch.manual_seed(1)
-        assert torch.equal(x, b.select_action(dict(o)))
+@pytest.mark.parametrize(
+    "execution", ["open_loop", "closed_loop", "temporal_ensemble", "object_anchored", "dcdp"]
+)
+def test_the_default_delay_0_plans_every_chunk_from_its_own_step(execution, act_base, demo_root) -> None:
+    """inference_delay defaults to 0, and 0 is the undelayed path in every mode: each chunk is planned from
+    the observation of the step that starts using it, from its first entry (the chunking modes replan every
+    H steps, the per-step modes every step), and no observations are kept for late plans."""
+    assert DCDPConfig.__dataclass_fields__["inference_delay"].default == 0
+    policy = make_dcdp_policy(
+        act_base,
+        demo_root,
+        execution=execution,
+        anchor_feature="observation.environment_state",
+        correction="residual" if execution == "dcdp" else "reconstruct",
+    ).eval()
+    assert policy.config.inference_delay == 0
+    fake = StepIndexBase()
+    policy.source = ChunkSource(fake)
+    policy.reset()
+    steps = 2 * H
+    for t, o in enumerate(step_observations(steps)):
+        action = policy.select_action(dict(o))
+        assert policy.chunk_delay == 0 and len(policy.state.past) == 0, t
+        if execution in ("open_loop", "closed_loop"):  # the executed action is the planned one, as planned
+            planned_from = t if execution == "closed_loop" else (t // H) * H
+            assert torch.equal(action[0], torch.tensor([planned_from, t], dtype=torch.float32)), t
+        if execution in ("open_loop", "object_anchored", "dcdp"):  # the chunk planned now, from entry 0
+            assert torch.equal(policy.state.chunk[0, :, 0], torch.full((H,), float((t // H) * H))), t
+    replans = range(0, steps, H) if execution in ("open_loop", "object_anchored", "dcdp") else range(steps)
+    assert fake.calls == list(replans)
 
 
 def test_diffusion_base_returns_its_horizon_on_demand(diffusion_base, demo_root) -> None:

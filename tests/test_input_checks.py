@@ -6,7 +6,7 @@ import pytest
 import torch
 from helpers import env_observations, make_dcdp_policy
 
-from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lerobot_dcdp.lockstep import run_lockstep
+from lerobot_dcdp.sim.lockstep import run_lockstep
 
 
 class CountingEnv:

@@ -9,8 +9,8 @@ import pytest
 import torch
 from helpers import make_dcdp_policy, training_batches
 
-from lerobot_dcdp.correction import anchor_actions, rigid_fit_2d
-from lerobot_dcdp.motion_synthesis import draw_motions, keypoint_extent, move_window
+from lerobot_dcdp.model.correction import anchor_actions, rigid_fit_2d
+from lerobot_dcdp.model.motion_synthesis import draw_motions, keypoint_extent, move_window
 
 KEY = "observation.environment_state"
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 from helpers import make_dcdp_policy, training_batches
 
-from lerobot_dcdp.precompute_plans import main, precompute_plans
+from lerobot_dcdp.data.precompute_plans import main, precompute_plans
 
 KEY = "observation.dcdp_plan"
 
@@ -23,7 +23,7 @@ def test_the_column_is_the_base_chunk_of_each_frame(act_base, demo_root, plans_r
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
     from lerobot.policies.factory import make_pre_post_processors
 
-    from lerobot_dcdp.base_policy import load_base_policy
+    from lerobot_dcdp.policy.base_policy import load_base_policy
 
     ds = LeRobotDataset("local/test", root=plans_root)
     original = LeRobotDataset("local/test", root=demo_root)

@@ -14,7 +14,7 @@ from lerobot.processor import PolicyProcessorPipeline, ProcessorStepRegistry
 from lerobot.processor.converters import batch_to_transition, transition_to_batch
 
 import lerobot_policy_dcdp  # noqa: F401  (registers the step, as LeRobot's plugin discovery does)
-from lerobot_dcdp.processor_split_state import SplitStateProcessorStep
+from lerobot_dcdp.policy.processor_split_state import SplitStateProcessorStep
 
 ROOT = Path(__file__).resolve().parents[1]
 CORRECTORS = [ROOT / "models" / m for m in ("pusht-dcdp-state", "pusht-dcdp-state-paper-recipe")]
@@ -128,7 +128,7 @@ def test_shipped_and_factory_pre_processors_start_with_the_step(corrector: Path)
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.factory import make_pre_post_processors
 
-    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+    from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
 
     cfg = PreTrainedConfig.from_pretrained(corrector)
     cfg.pretrained_path = corrector

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from lerobot_dcdp.pusht.demos import record_demonstrations, run_episode
+from lerobot_dcdp.data.pusht_demos import record_demonstrations, run_episode
 
 
 def test_dataset_loads_and_every_episode_succeeds(demo_root) -> None:
@@ -87,7 +87,7 @@ def test_force_replaces_an_earlier_output_and_leaves_other_runs_tmp(tmp_path) ->
 
 
 def test_too_few_successes_is_one_clear_error(tmp_path, monkeypatch) -> None:
-    from lerobot_dcdp.pusht import demos
+    from lerobot_dcdp.data import pusht_demos as demos
 
     monkeypatch.setattr(
         demos,

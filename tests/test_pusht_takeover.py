@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from lerobot_dcdp.pusht.demos import MARKER, record_demonstrations, run_episode
-from lerobot_dcdp.pusht.takeover import PolicyLead, lead_steps_for
+from lerobot_dcdp.data.pusht_demos import MARKER, record_demonstrations, run_episode
+from lerobot_dcdp.data.takeover import PolicyLead, lead_steps_for
 
 
 class ToCorner:

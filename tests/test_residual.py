@@ -9,7 +9,7 @@ import pytest
 import torch
 from helpers import env_observations, make_dcdp_policy, training_batches
 
-from lerobot_dcdp.correction import (
+from lerobot_dcdp.model.correction import (
     action_range,
     anchor_actions,
     check_normalization,
@@ -102,7 +102,7 @@ def test_normalize_round_trip(mode: str) -> None:
 
 
 def test_anchored_labels_follow_the_block_with_lookahead() -> None:
-    from lerobot_dcdp.pusht.corrections import anchored_labels
+    from lerobot_dcdp.data.corrections import anchored_labels
 
     kp0 = np.random.default_rng(0).uniform(100, 400, (8, 2))
     # the block translates by (2, -1) per step; 5 observations (4 steps + the final one)
@@ -126,7 +126,7 @@ def test_anchored_labels_follow_the_block_with_lookahead() -> None:
 
 
 def test_drift_offset_labels_add_only_the_applied_drift() -> None:
-    from lerobot_dcdp.pusht.corrections import drift_offset_labels
+    from lerobot_dcdp.data.corrections import drift_offset_labels
 
     plans = np.repeat(np.arange(8 * 2, dtype=np.float32).reshape(1, 8, 2), 5, axis=0)
     steps = np.array([0, 1, 2, 0, 1])  # the fourth frame starts a new chunk
@@ -149,7 +149,7 @@ def test_drift_offset_labels_add_only_the_applied_drift() -> None:
 def test_drift_offset_teacher_labels_drift_not_pushing(diffusion_base) -> None:
     """Recorded with the env: a static episode's labels are its plans even while the agent pushes the block;
     a drifting one's labels are its plans moved by exactly the drift seen since plan time."""
-    from lerobot_dcdp.pusht.corrections import DriftSpec, load_policy, rollout_corrections
+    from lerobot_dcdp.data.corrections import DriftSpec, load_policy, rollout_corrections
 
     kp = "observation.environment_state"
     policy, pre, post = load_policy(None, str(diffusion_base), "object_anchored", kp)
@@ -169,7 +169,7 @@ def test_drift_offset_teacher_labels_drift_not_pushing(diffusion_base) -> None:
 
 # ---------------------------------------------------------------- execution mode object_anchored
 def _normalised(policy, n_envs: int, steps: int) -> list[dict]:
-    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+    from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
 
     pre, _ = make_dcdp_pre_post_processors(policy.config)
     return [pre(dict(o)) for o in env_observations(n_envs, steps)]
@@ -215,7 +215,7 @@ def test_object_anchored_is_open_loop_while_the_object_stands_still_and_follows_
 # ---------------------------------------------------------------- recorded corrections + residual corrector
 def _record_drifting(diffusion_base, root, episodes: int, **kw) -> dict:
     """Tiny recording around ``diffusion_base``: every episode drifts (3 px/step at most), 24 steps each."""
-    from lerobot_dcdp.pusht.corrections import record_corrections
+    from lerobot_dcdp.data.corrections import record_corrections
 
     return record_corrections(
         root,
@@ -242,7 +242,7 @@ def corrections_root(diffusion_base, tmp_path_factory):
 def test_recorded_corrections_hold_the_stale_plan_and_the_teacher(corrections_root) -> None:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_dcdp.pusht.corrections import drift_for_seed
+    from lerobot_dcdp.data.corrections import drift_for_seed
 
     ds = LeRobotDataset("local/test", root=corrections_root)
     assert {"observation.dcdp_plan", "observation.dcdp_plan_step", "action", "executed_action"} <= set(
@@ -280,7 +280,7 @@ def test_late_recorded_chunks_hold_their_delay_and_labels_from_plan_time(late_co
     (from its delayed plan-time keypoints); carrying from s steps back instead gives other labels."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_dcdp.pusht.corrections import anchored_labels
+    from lerobot_dcdp.data.corrections import anchored_labels
 
     ds = LeRobotDataset("local/test", root=late_corrections_root)
     episodes = ds.hf_dataset["episode_index"]
@@ -344,7 +344,7 @@ def test_correction_stats_tabulates_label_sizes_per_delay(late_corrections_root)
 
 
 def test_record_corrections_refuses_eval_seeds_and_foreign_folders(diffusion_base, tmp_path) -> None:
-    from lerobot_dcdp.pusht.corrections import record_corrections
+    from lerobot_dcdp.data.corrections import record_corrections
 
     with pytest.raises(ValueError, match="evaluation seeds"):
         record_corrections(tmp_path / "x", base_path=str(diffusion_base), episodes=2, seed=99_999)
@@ -449,7 +449,7 @@ def test_residual_training_without_recorded_plans_says_what_to_do(diffusion_base
 def test_gated_teacher_leaves_chunks_alone_without_drift(diffusion_base, tmp_path) -> None:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_dcdp.pusht.corrections import record_corrections
+    from lerobot_dcdp.data.corrections import record_corrections
 
     root = tmp_path / "gated"
     record_corrections(
@@ -542,7 +542,7 @@ def test_recorded_rounds_merge_with_lerobots_own_merge(diffusion_base, correctio
     from lerobot.datasets.dataset_tools import merge_datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_dcdp.pusht.corrections import record_corrections
+    from lerobot_dcdp.data.corrections import record_corrections
 
     other = tmp_path / "round2"
     record_corrections(
@@ -591,7 +591,7 @@ def test_the_kernel_follows_writes_through_param_data(diffusion_base, correction
 
 
 def test_recording_leaves_the_callers_random_state_alone(diffusion_base) -> None:
-    from lerobot_dcdp.pusht.corrections import DriftSpec, load_policy, rollout_corrections
+    from lerobot_dcdp.data.corrections import DriftSpec, load_policy, rollout_corrections
 
     policy, pre, post = load_policy(None, str(diffusion_base), "open_loop", "observation.environment_state")
     spec = DriftSpec("constant", 1.0, 0.0, (0.0,), 50)

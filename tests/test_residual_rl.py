@@ -13,7 +13,7 @@ import torch
 from helpers import env_observations, make_dcdp_policy
 from test_teleop import BIN, ENV, _evaluate_one_episode, run
 
-from lerobot_dcdp.ppo import (
+from lerobot_dcdp.train.ppo import (
     clipped_policy_loss,
     gaussian_log_prob,
     generalized_advantages,
@@ -59,7 +59,7 @@ def test_gaussian_log_prob_and_the_clipped_surrogate() -> None:
 
 def _residual_corrector(diffusion_base: Path, demo_root: Path, out: Path, **overrides) -> Path:
     """A tiny residual corrector (head trained a little, so it is not all zero) saved with its processors."""
-    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+    from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
 
     policy = make_dcdp_policy(diffusion_base, demo_root, correction="residual", n_action_steps=4, **overrides)
     with torch.no_grad():
@@ -74,8 +74,8 @@ def _residual_corrector(diffusion_base: Path, demo_root: Path, out: Path, **over
 def test_exploration_samples_around_the_head_bounded_by_the_starting_corrector(
     diffusion_base, demo_root, tmp_path
 ) -> None:
-    from lerobot_dcdp.finetune_rl import load_corrector
-    from lerobot_dcdp.residual_exploration import ResidualExploration
+    from lerobot_dcdp.train.finetune_rl import load_corrector
+    from lerobot_dcdp.train.residual_exploration import ResidualExploration
 
     policy, pre, _, _ = load_corrector(_residual_corrector(diffusion_base, demo_root, tmp_path / "c"))
     head, half = policy.corrector.residual, policy.corrector.action_half_range
@@ -109,8 +109,8 @@ def test_exploration_samples_around_the_head_bounded_by_the_starting_corrector(
 def test_finetune_changes_only_the_residual_head_is_reproducible_and_resumes(
     diffusion_base, demo_root, tmp_path
 ) -> None:
-    from lerobot_dcdp.finetune_rl import RLConfig, finetune
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.train.finetune_rl import RLConfig, finetune
 
     # saved to run open loop with a late base: RL runs it as dcdp on time, its checkpoints keep what was saved
     start = _residual_corrector(
@@ -143,7 +143,7 @@ def test_finetune_changes_only_the_residual_head_is_reproducible_and_resumes(
 
 
 def test_config_errors_name_the_fix(diffusion_base, demo_root, tmp_path) -> None:
-    from lerobot_dcdp.finetune_rl import RLConfig, finetune, load_corrector
+    from lerobot_dcdp.train.finetune_rl import RLConfig, finetune, load_corrector
 
     with pytest.raises(ValueError, match="training seeds .* lower --seed"):
         RLConfig(seed=99_990, iterations=2, envs=8)

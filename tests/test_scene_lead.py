@@ -8,10 +8,8 @@ import pytest
 import torch
 from helpers import env_observations, make_dcdp_policy
 
-from lerobot_dcdp.base_normalizer import BaseNormalizer
-from lerobot_dcdp.configuration_dcdp import DCDPConfig
-from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
-from lerobot_dcdp.scene_lead import (
+from lerobot_dcdp.model.base_normalizer import BaseNormalizer
+from lerobot_dcdp.model.scene_lead import (
     SceneLead,
     check_lead_features,
     data_range,
@@ -21,6 +19,8 @@ from lerobot_dcdp.scene_lead import (
     repeated_motion,
     tracker_noise,
 )
+from lerobot_dcdp.policy.configuration_dcdp import DCDPConfig
+from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
 
 KEY = "observation.environment_state"
 
@@ -337,7 +337,7 @@ def test_the_fit_leads_by_default_where_the_base_can_be_led_and_refuses_an_expli
 
     from lerobot.configs.types import FeatureType, PolicyFeature
 
-    from lerobot_dcdp.fit_completion_gate import set_lead
+    from lerobot_dcdp.train.fit_completion_gate import set_lead
 
     state = PolicyFeature(type=FeatureType.STATE, shape=(2,))
     keypoints = PolicyFeature(type=FeatureType.ENV, shape=(16,))

@@ -32,8 +32,8 @@ def test_models_are_small_and_complete() -> None:
 
 @pytest.mark.parametrize("corrector", CORRECTORS, ids=lambda p: p.name)
 def test_shipped_corrector_runs_every_mode_from_another_directory(corrector, tmp_path, monkeypatch) -> None:
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
-    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
 
     saved = json.loads((corrector / "config.json").read_text())
     stored = saved["base_policy_path"]
@@ -84,7 +84,7 @@ def test_every_config_parses(path: Path) -> None:
         )
         assert cfg.policy.type == "dcdp" and cfg.policy.n_action_steps >= 1
     else:
-        import lerobot_dcdp.envs  # noqa: F401  (registers pusht_perturbed)
+        import lerobot_dcdp.sim.envs  # noqa: F401  (registers pusht_perturbed)
 
         cfg = draccus.decode(EnvConfig, content["env"])
         assert cfg.type == content["env"]["type"]
@@ -100,9 +100,9 @@ def test_shipped_checkpoint_loads_unchanged(corrector, tmp_path) -> None:
     (current layout) gives the same actions."""
     from safetensors.torch import load_file
 
-    from lerobot_dcdp.correction import state_dict_sha256
-    from lerobot_dcdp.modeling_dcdp import DCDPPolicy
-    from lerobot_dcdp.processor_dcdp import make_dcdp_pre_post_processors
+    from lerobot_dcdp.model.correction import state_dict_sha256
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
 
     # older shipped files keep the layout they were saved with (no ``corrector.`` prefix); newer ones have it
     raw = load_file(corrector / "model.safetensors")

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_dcdp.dynamics import DynamicFeatureExtractor, FrameEncoder
-from lerobot_dcdp.residual import ResidualHead
-from lerobot_dcdp.step_kernel import pack_weights, residual_step, supports
+from lerobot_dcdp.model.dynamics import DynamicFeatureExtractor, FrameEncoder
+from lerobot_dcdp.model.residual import ResidualHead
+from lerobot_dcdp.runtime.step_kernel import pack_weights, residual_step, supports
 
 N_STATE, M, D, HEADS, H, A, HIDDEN = 7, 4, 16, 4, 6, 2, 24
 
@@ -95,7 +95,7 @@ def test_kernel_refuses_what_it_does_not_cover() -> None:
 _FALLBACK = """
 import logging, sys, torch
 logging.basicConfig(level=logging.INFO)
-from lerobot_dcdp.modeling_dcdp import DCDPPolicy
+from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
 p = DCDPPolicy.from_pretrained(sys.argv[1])
 p.eval().reset()
 torch.manual_seed(0)

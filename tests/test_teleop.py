@@ -15,9 +15,9 @@ import pytest
 import torch
 from helpers import tiny_train_flags
 
-from lerobot_dcdp.robots.pusht_sim import AGENT_NAMES, KEYPOINT_NAMES
-from lerobot_dcdp.teleoperators import PushTExpert, PushTExpertConfig
-from lerobot_dcdp.teleoperators.pusht_expert import block_pose_from_keypoints
+from lerobot_dcdp.sim.robots.pusht_sim import AGENT_NAMES, KEYPOINT_NAMES
+from lerobot_dcdp.sim.teleoperators import PushTExpert, PushTExpertConfig
+from lerobot_dcdp.sim.teleoperators.pusht_expert import block_pose_from_keypoints
 
 BIN = Path(sys.executable).parent
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
@@ -57,7 +57,7 @@ def _evaluate_one_episode(ckpt: Path, *env_flags: str, cwd: Path) -> None:
 
 
 def test_block_pose_is_recovered_from_its_keypoints() -> None:
-    from lerobot_dcdp.pusht.geometry import keypoints
+    from lerobot_dcdp.sim.pusht_geometry import keypoints
 
     rng = np.random.default_rng(0)
     for _ in range(20):
@@ -85,7 +85,7 @@ def test_config_and_feedback_errors_name_the_problem() -> None:
 def test_the_scripted_teleoperator_completes_a_static_episode_from_observations_alone() -> None:
     """It sees only the observation (keypoints, agent position) through send_feedback, sends smooth
     targets (at most max_step apart) and completes the task."""
-    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
+    from lerobot_dcdp.sim.envs.pusht_perturbed import make_perturbed_env
 
     cfg = PushTExpertConfig(replan_every=8)
     env = make_perturbed_env(obs_type="environment_state_agent_pos", max_episode_steps=300)
@@ -109,8 +109,8 @@ def test_the_scripted_teleoperator_completes_a_static_episode_from_observations_
 
 
 def test_follow_deviation_carries_a_target_with_the_blocks_rigid_motion() -> None:
-    from lerobot_dcdp.pusht.geometry import keypoints
-    from lerobot_dcdp.teleoperators.pusht_expert import follow_deviation
+    from lerobot_dcdp.sim.pusht_geometry import keypoints
+    from lerobot_dcdp.sim.teleoperators.pusht_expert import follow_deviation
 
     predicted, observed = np.array([200.0, 150.0, 0.3]), np.array([215.0, 140.0, 0.3 + math.pi / 2])
     # a point fixed to the block (one of its corners) lands on the same corner of the observed block
@@ -124,7 +124,7 @@ def test_follow_deviation_carries_a_target_with_the_blocks_rigid_motion() -> Non
 
 def test_the_exact_sim_drifts_the_block_as_the_perturbed_env_does() -> None:
     """``ExactSim.drift`` moves the block by that many px before every step, clipped at the arena."""
-    from lerobot_dcdp.pusht.expert import ExactSim
+    from lerobot_dcdp.sim.pusht_expert import ExactSim
 
     sim = ExactSim()
     sim.set_state((60.0, 60.0), (0.0, 0.0), np.array([300.0, 300.0, 0.0]))
@@ -141,7 +141,7 @@ def test_a_following_teleoperator_estimates_the_drift_and_leaves_a_still_scene_a
     (constant 2 px/step at 45 degrees: (1.41, 1.41) px/step) and plans with it; on a still scene the estimate
     stays at zero and the targets stay within a pixel of the plain expert's; without the flag it assumes no
     drift."""
-    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
+    from lerobot_dcdp.sim.envs.pusht_perturbed import make_perturbed_env
 
     def drive(follow: bool, magnitude: float, steps: int) -> tuple[np.ndarray, list[np.ndarray]]:
         env = make_perturbed_env(
@@ -252,7 +252,7 @@ def test_a_teacher_policy_labels_every_step_with_its_own_action(diffusion_base, 
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
     from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
-    from lerobot_dcdp.pusht.corrections import record_corrections
+    from lerobot_dcdp.data.corrections import record_corrections
 
     root = tmp_path / "taught"
     record_corrections(
@@ -289,7 +289,7 @@ def test_the_expert_teacher_labels_the_learners_states_with_the_scripted_experts
     for that observation; the expert's targets are its own, not the plan."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_dcdp.pusht.corrections import record_corrections
+    from lerobot_dcdp.data.corrections import record_corrections
 
     root = tmp_path / "expert"
     record_corrections(
@@ -326,7 +326,7 @@ def test_the_expert_teacher_labels_the_learners_states_with_the_scripted_experts
 
 
 def test_recorder_flag_errors_name_the_fix(diffusion_base, tmp_path) -> None:
-    from lerobot_dcdp.pusht.corrections import TeleopTeacher, parse_teleop_args, record_corrections
+    from lerobot_dcdp.data.corrections import TeleopTeacher, parse_teleop_args, record_corrections
 
     teacher = TeleopTeacher(PushTExpertConfig(), 1)  # shown the scene: an env without keypoints is refused
     try:

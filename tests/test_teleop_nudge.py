@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_dcdp.robots.pusht_sim import AGENT_NAMES, KEYPOINT_NAMES
-from lerobot_dcdp.teleoperators import PushTExpert, PushTExpertConfig, PushTNudge, PushTNudgeConfig
-from lerobot_dcdp.teleoperators.pusht_nudge import CHUNK_STEP, COMMAND_NAMES, carried
+from lerobot_dcdp.sim.robots.pusht_sim import AGENT_NAMES, KEYPOINT_NAMES
+from lerobot_dcdp.sim.teleoperators import PushTExpert, PushTExpertConfig, PushTNudge, PushTNudgeConfig
+from lerobot_dcdp.sim.teleoperators.pusht_nudge import CHUNK_STEP, COMMAND_NAMES, carried
 
 
 def _feedback(obs: dict, command: np.ndarray, chunk_step: int) -> dict:
@@ -23,7 +23,7 @@ def _feedback(obs: dict, command: np.ndarray, chunk_step: int) -> dict:
 
 
 def _env(magnitude: float):
-    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
+    from lerobot_dcdp.sim.envs.pusht_perturbed import make_perturbed_env
 
     return make_perturbed_env(
         obs_type="environment_state_agent_pos",
@@ -99,7 +99,7 @@ def test_a_drifting_block_is_noticed_and_the_command_carried_with_it_since_the_c
 
 
 def test_carried_is_the_rigid_motion_of_the_keypoints() -> None:
-    from lerobot_dcdp.pusht.geometry import keypoints
+    from lerobot_dcdp.sim.pusht_geometry import keypoints
 
     then = keypoints(np.array([200.0, 200.0, 0.3]))
     now = keypoints(np.array([230.0, 190.0, 0.3 + math.pi / 6]))
@@ -119,7 +119,7 @@ def test_recorded_labels_are_the_command_carried_when_drifting_and_the_plan_at_r
     notices), and it is what the robot executed; on a still episode every label is the plan."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_dcdp.pusht.corrections import record_corrections
+    from lerobot_dcdp.data.corrections import record_corrections
 
     def record(name: str, seed: int, static_fraction: float):
         root = tmp_path / name

@@ -1,11 +1,17 @@
-"""DCDP for LeRobot: registers the `dcdp` policy, the `pusht_perturbed` env, the `pusht_sim` robot, the
-`pusht_expert` teleoperator and the `dcdp_split_state` processor step (saved in the correctors'
-pre-processors)."""
+"""DCDP for LeRobot: closed-loop action chunks with per-step corrections of a frozen chunking policy.
 
-from lerobot_dcdp.configuration_dcdp import DCDPConfig
-from lerobot_dcdp.envs.pusht_perturbed import PushTPerturbedEnvConfig  # noqa: F401
-from lerobot_dcdp.processor_split_state import SplitStateProcessorStep  # noqa: F401
-from lerobot_dcdp.robots.config_pusht_sim import PushTSimConfig  # noqa: F401
-from lerobot_dcdp.teleoperators.config_pusht_expert import PushTExpertConfig  # noqa: F401
+Layers, each importing only those below it (``lint-imports`` checks this; see pyproject.toml):
 
-__all__ = ["DCDPConfig"]
+- ``benchmark``: rollouts, tables, latency, the demo;
+- ``train``: completion-gate fit, residual RL (PPO);
+- ``deploy``: served base, robot client, remote planner;
+- ``data``: demonstrations, recorded corrections, DAgger / plan converters, FastUMI, atomic folders;
+- ``sim``: the perturbed PushT env, the simulated robot, teleoperators, the scripted expert;
+- ``policy``: LeRobot's face (config, ``DCDPPolicy``, processors, folders, base loading);
+- ``runtime``: execution modes, planning, chunk sources, the compiled step kernel;
+- ``model``: correctors, their networks, gate, scene lead and the pure correction math.
+
+Importing this package registers nothing; ``lerobot_policy_dcdp`` (what LeRobot's plugin discovery imports)
+registers the ``dcdp`` policy, its processor steps, the ``pusht_perturbed`` env, the ``pusht_sim`` robot and
+the ``pusht_expert`` / ``pusht_nudge`` teleoperators.
+"""

@@ -19,10 +19,16 @@ def main(argv: list[str] | None = None) -> None:
     from lerobot_dcdp.benchmark import run
 
     p = argparse.ArgumentParser(prog="dcdp-demo", description=__doc__.splitlines()[0])
-    p.add_argument("--corrector", default=shipped_model("pusht-dcdp-state"))
-    p.add_argument("--condition", default="constant_2.0")
-    p.add_argument("--episodes", type=int, default=10)
-    p.add_argument("--out", default="outputs/demo")
+    p.add_argument(
+        "--corrector",
+        default=shipped_model("pusht-dcdp-state"),
+        help="corrector folder to run (default: the shipped diffusion corrector)",
+    )
+    p.add_argument(
+        "--condition", default="constant_2.0", help="PushT perturbation, e.g. constant_2.0 (the default)"
+    )
+    p.add_argument("--episodes", type=int, default=10, help="episodes per method, rolled out as one batch")
+    p.add_argument("--out", default="outputs/demo", help="folder for the results, report, plot and video")
     a = p.parse_args(argv)
     t0 = time.perf_counter()
     out = Path(a.out)

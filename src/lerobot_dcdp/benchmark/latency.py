@@ -64,7 +64,7 @@ def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str
     step that replaces them (``step_kernel.py``, when the corrector has one) and the once-per-chunk work
     (chunk latent, head terms, kernel check) divided by H."""
     from lerobot_dcdp.benchmark.rollout import _stack_obs
-    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
+    from lerobot_dcdp.sim.envs.pusht_perturbed import make_perturbed_env
 
     env = make_perturbed_env(obs_type="environment_state_agent_pos")
     obs, _ = env.reset(seed=100_000)
@@ -121,16 +121,27 @@ def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="dcdp-latency", description=__doc__.splitlines()[0])
-    p.add_argument("--corrector", default=shipped_model("pusht-dcdp-state"))
-    p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
+    p.add_argument(
+        "--corrector",
+        default=shipped_model("pusht-dcdp-state"),
+        help="corrector folder to time (default: the shipped diffusion corrector)",
+    )
+    p.add_argument(
+        "--modes",
+        nargs="+",
+        default=list(MODES),
+        choices=MODES,
+        help="execution modes to time (object_anchored only when the corrector names an anchor feature)",
+    )
     p.add_argument("--episodes", type=int, default=2, help="episodes per mode and batch size")
     p.add_argument("--steps", type=int, default=300, help="control steps per episode")
-    p.add_argument("--batches", type=int, nargs="+", default=[1, 50])
-    p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--out", default="results/latency.json")
+    p.add_argument("--batches", type=int, nargs="+", default=[1, 50], help="batch sizes (envs) to time")
+    p.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    p.add_argument("--out", default="results/latency.json", help="JSON file the timings are written to")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
-    from lerobot_dcdp.benchmark.run import git_commit, load_model, machine
+    from lerobot_dcdp.benchmark.identity import git_commit, machine
+    from lerobot_dcdp.benchmark.modes import load_model
 
     policy, pre, post, ident = load_model(a.corrector)
     modes = [m for m in a.modes if m != "object_anchored" or policy.config.anchor_feature]

@@ -44,7 +44,7 @@ CONDITIONS = [
 ]
 #: The main protocol's conditions (``dcdp-benchmark``'s default; 0.75 px/step belongs to the mild protocol).
 MAIN_CONDITIONS = [c.name for c in CONDITIONS if c.magnitude != 0.75]
-#: The mild protocol (issue 22): at rest and the drifts where an episode can still succeed.
+#: The mild protocol (mild drift): at rest and the drifts where an episode can still succeed.
 MILD_CONDITIONS = ["static"] + [f"{k}_{m}" for m in (0.5, 0.75, 1.0) for k in ("constant", "random")]
 #: Steps of each plan the privileged expert executes before it re-plans (the bases' chunk length H).
 EXPERT_CHUNK = 8
@@ -89,8 +89,8 @@ def rollout(
     """Run ``len(seeds)`` episodes in one batch; returns per-episode results and per-step policy times."""
     from lerobot.envs.utils import preprocess_observation
 
-    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
-    from lerobot_dcdp.lockstep import run_lockstep
+    from lerobot_dcdp.sim.envs.pusht_perturbed import make_perturbed_env
+    from lerobot_dcdp.sim.lockstep import run_lockstep
 
     envs = [
         make_perturbed_env(
@@ -140,11 +140,12 @@ def expert_identity(chunk: int = EXPERT_CHUNK) -> dict:
     """What an expert cell was computed with (its reuse key in the results file)."""
     from dataclasses import asdict
 
-    from lerobot_dcdp.pusht.expert import ExpertConfig
+    from lerobot_dcdp.sim.pusht_expert import ExpertConfig
 
     cfg = asdict(ExpertConfig(max_exec=chunk))
     cfg.pop("contacts")
     return {
+        # the name it had when the stored cells were computed (a reuse key, kept stable across moves)
         "expert": "lerobot_dcdp.pusht.expert.ScriptedExpert",
         "privileged": "reads the simulator's true state and re-plans on an exact copy of its physics",
         "chunk": chunk,
@@ -159,7 +160,7 @@ def expert_rollout(
     chunk: int = EXPERT_CHUNK,
     env_kwargs: dict | None = None,
 ) -> RolloutResult:
-    """The privileged scripted expert (:class:`~lerobot_dcdp.pusht.expert.ScriptedExpert`) on each seed.
+    """The privileged scripted expert (:class:`~lerobot_dcdp.sim.pusht_expert.ScriptedExpert`) on each seed.
 
     The expert reads the simulator's true state (block pose and velocities, agent position and velocity),
     plans a push primitive on an exact copy of the physics, executes at most ``chunk`` steps of it and
@@ -178,12 +179,12 @@ def expert_rollout(
     Returns:
         Per-episode results; ``step_times_ms`` holds each episode's planning time per control step.
     """
-    from lerobot_dcdp.envs.pusht_perturbed import make_perturbed_env
-    from lerobot_dcdp.pusht.expert import ExpertConfig, ScriptedExpert
+    from lerobot_dcdp.sim.envs.pusht_perturbed import make_perturbed_env
+    from lerobot_dcdp.sim.pusht_expert import ExpertConfig, ScriptedExpert
 
     if chunk < 1:
         raise ValueError(f"the expert's chunk must be >= 1 step, got {chunk}")
-    from lerobot_dcdp.lockstep import run_lockstep
+    from lerobot_dcdp.sim.lockstep import run_lockstep
 
     envs = [
         make_perturbed_env(

@@ -1,1 +1,1 @@
-"""PushT helpers: T-block geometry, a privileged scripted expert and the demonstration recorder."""
+"""Compatibility names: the PushT modules moved to :mod:`lerobot_dcdp.sim` and :mod:`lerobot_dcdp.data`."""

@@ -1,0 +1,1 @@
+"""Datasets: PushT demonstrations, recorded corrections, DAgger and plan converters, FastUMI, atomic folders."""

@@ -1,0 +1,1 @@
+"""Correctors, their networks, the completion gate, the scene lead and the pure correction math."""

@@ -1,6 +1,0 @@
-"""Robots of the DCDP plugin: ``pusht_sim``, a simulated PushT for ``lerobot-rollout``."""
-
-from lerobot_dcdp.robots.config_pusht_sim import PushTSimConfig
-from lerobot_dcdp.robots.pusht_sim import PushTSim
-
-__all__ = ["PushTSim", "PushTSimConfig"]

@@ -1,0 +1,1 @@
+"""What happens at a control step: execution modes, planning, planners, chunk sources, the step kernel."""
