@@ -1,5 +1,6 @@
-"""Image path: image-only PushT demos -> diffusion base + ResNet18 (no download) -> a DCDP corrector on images
-(ResNet18 frame backbone) trained with lerobot-train -> stage 2 of every execution mode in lerobot-eval."""
+"""Image path: image-only PushT demos -> diffusion base + ResNet18 (no download) -> recorded image corrections
+-> a keypoint reader and a residual corrector reading it, and the paper's image corrector (ResNet18 frame
+backbone), trained with lerobot-train -> stage 2 of the execution modes in lerobot-eval under pixels only."""
 
 from __future__ import annotations
 
@@ -33,6 +34,7 @@ def test_image_base_and_image_corrector_train_and_evaluate(image_demo_root, tmp_
     assert "observation.image" in json.loads((ckpt / "config.json").read_text())["input_features"]
     _eval_one_image_episode(ckpt, tmp_path / "eval", "--env.type=pusht", "--env.episode_length=8")
     _record_image_corrections(ckpt, tmp_path / "corrections")
+    _keypoint_reader_corrector(ckpt, tmp_path / "corrections", tmp_path)
 
     # the corrector on images: ResNet18 per-frame backbone (random weights, nothing downloaded)
     run(
@@ -196,3 +198,54 @@ def _record_image_corrections(base, root) -> None:
     labels = np.stack([ds[i]["action"].numpy() for i in range(ds.num_frames)])
     executed = np.stack([ds[i]["executed_action"].numpy() for i in range(ds.num_frames)])
     assert np.abs(labels - executed).max() > 0.5  # the teacher moved the stale plan with the drifting block
+
+
+def _keypoint_reader_corrector(base, corrections, tmp_path) -> None:
+    """The image corrector: a frame -> keypoints reader fitted on the recorded frames (the simulator's
+    keypoints are its targets), then the residual corrector trained by lerobot-train on the recorded
+    corrections with the reader in its pre-processor; lerobot-eval runs it, and the training-free anchoring on
+    the reader, where the env gives pixels and the agent position only."""
+    reader = tmp_path / "reader"
+    run(
+        [
+            str(BIN / "dcdp-fit-pixel-keypoints"),
+            "--repo-id=local/img_corr",
+            f"--root={corrections}",
+            f"--out={reader}",
+            "--steps=5",
+            "--batch-size=8",
+            "--val-episodes=1",
+        ],
+        cwd=tmp_path,
+    )
+    run(
+        [
+            str(BIN / "lerobot-train"),
+            "--policy.type=dcdp",
+            f"--policy.base_policy_path={base}",
+            *tiny_train_flags("local/img_corr", corrections),
+            f"--output_dir={tmp_path / 'dcdp_kp'}",
+            f"--policy.keypoint_reader_path={reader}",
+            "--policy.anchor_feature=observation.environment_state",
+            "--policy.train_max_delay=0",
+        ],
+        cwd=tmp_path,
+    )
+    corrector = tmp_path / "dcdp_kp" / "checkpoints" / "last" / "pretrained_model"
+    cfg = json.loads((corrector / "config.json").read_text())
+    assert cfg["input_features"]["observation.environment_state"]["shape"] == [16]
+    steps = json.loads((corrector / "policy_preprocessor.json").read_text())["steps"]
+    names = [s.get("registry_name") for s in steps]
+    assert names.index("dcdp_pixel_keypoints") < names.index("dcdp_check_observation")
+    assert list(corrector.glob("*dcdp_pixel_keypoints.safetensors"))  # the reader travels with the folder
+    reader.rename(tmp_path / "reader_gone")  # the trained folder needs no reader folder
+    for mode in ("dcdp", "object_anchored"):
+        _eval_one_image_episode(
+            corrector,
+            tmp_path / f"eval_kp_{mode}",
+            f"--policy.execution={mode}",
+            "--env.type=pusht_perturbed",
+            "--env.perturbation=constant",
+            "--env.magnitude=2",
+            "--env.episode_length=10",
+        )

@@ -6,12 +6,17 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_dcdp.model.pixel_keypoints import PixelKeypointNet, PixelKeypointsConfig, keypoint_error
-from lerobot_dcdp.train.fit_pixel_keypoints import load_reader, main, split_episodes
+from lerobot_dcdp.model.pixel_keypoints import (
+    PixelKeypointNet,
+    PixelKeypointsConfig,
+    keypoint_error,
+    load_reader,
+)
+from lerobot_dcdp.train.fit_pixel_keypoints import main, split_episodes
 
 
 def _square_frames(n: int, size: int = 32, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Frames (n, size, size, 3) uint8 with a bright 6x6 square; keypoints (n, 4): its two opposite corners."""
+    """Frames (n, size, size, 3) uint8 with a bright 6x6 square; keypoints (n, 4): two opposite corners."""
     rng = np.random.default_rng(seed)
     corners = rng.integers(2, size - 8, size=(n, 2))
     images = np.zeros((n, size, size, 3), np.uint8)

@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from lerobot_dcdp.benchmark.cells import EXPERT
-from lerobot_dcdp.benchmark.protocols import DEFAULT_MODELS, METHODS, protocols
+from lerobot_dcdp.benchmark.protocols import BID_WEAK, DEFAULT_MODELS, METHODS, protocols
 
 #: the parser's description: the first line of :mod:`lerobot_dcdp.benchmark.run`'s docstring
 DESCRIPTION = "``dcdp-benchmark``: every execution mode x every perturbation, 50 fixed seeds, one protocol."
@@ -31,8 +31,8 @@ def build_parser(presets: dict[str, dict]) -> argparse.ArgumentParser:
         "--protocol",
         choices=sorted(presets),
         default="main",
-        help="main: 50 episodes, every drift (default); mild: 100 episodes at 0-1 px/step "
-        "(own results file and report)",
+        help="main: 50 episodes, every drift (default); mild: 100 episodes at 0-1 px/step; image: the image "
+        "base and its corrector from pixels, 100 episodes (mild and image: own results file and report)",
     )
     p.add_argument(
         "--model",
@@ -77,6 +77,14 @@ def build_parser(presets: dict[str, dict]) -> argparse.ArgumentParser:
         default=None,
         help="generated report (main: docs/RESULTS.md; with --out: the results file's name with .md)",
     )
+    p.add_argument(
+        "--bid-weak",
+        action="append",
+        default=None,
+        metavar="LABEL=DIR",
+        help="BID's weak reference policy for a model (repeatable); default: the shipped early checkpoint "
+        "of the diffusion base for the diffusion models; a model without one runs BID without it",
+    )
     p.add_argument("--force", action="store_true", help="recompute finished cells (and replace any cell)")
     return p
 
@@ -86,7 +94,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
     Besides the flags, the namespace holds ``realtime`` (the protocol's real-time summaries folder, or
     ``None``), ``models`` (label -> folder: the ``--model`` ones, else the protocol's shipped folders that
-    exist) and ``model_methods`` (label -> the methods the protocol runs for it; empty for ``--model``).
+    exist), ``model_methods`` (label -> the methods the protocol runs for it; empty for ``--model``) and
+    ``bid_weak`` (label -> BID's weak reference policy folder).
 
     Args:
         argv: The arguments (default: ``sys.argv[1:]``).
@@ -119,4 +128,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     # explicit correctors run every requested method; the protocol's own, those it names for them
     a.model_methods = {} if a.model else preset["model_methods"]
+    a.bid_weak = (
+        dict(m.split("=", 1) for m in a.bid_weak)
+        if a.bid_weak
+        else {k: v for k, v in BID_WEAK.items() if Path(v).is_dir()}
+    )
     return a

@@ -10,6 +10,7 @@ METHOD_NAMES = {
     "object_anchored": "Object-anchored chunk (H=8, training-free)",
     "gated_anchored": "Object-anchored chunk + completion gate (H=8, no corrector)",
     "dcdp": "DCDP (H=8)",
+    "bid": "BID (15 samples + weak policy, every step, training-free)",
 }
 #: rows that depend on what the model folder learned (corrector, gate): never borrowed from another model
 OWN_ROWS = ("dcdp", "gated_anchored")

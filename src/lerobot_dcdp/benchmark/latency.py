@@ -22,11 +22,14 @@ import torch
 
 from lerobot_dcdp.benchmark import shipped_model
 
-MODES = ("open_loop", "dcdp", "object_anchored", "closed_loop")
+MODES = ("open_loop", "dcdp", "object_anchored", "closed_loop", "bid")
+#: the modes timed unless ``--modes`` says otherwise (BID, 30 base samples per step, on request)
+DEFAULT_MODES = ("open_loop", "dcdp", "object_anchored", "closed_loop")
 
 
 def time_modes(policy, pre, post, modes, episodes: int, steps: int, batch: int, seed: int) -> dict:
     """Per-step latency of each mode (ms), episodes interleaved across modes."""
+    from lerobot_dcdp.benchmark.modes import obs_type
     from lerobot_dcdp.benchmark.rollout import CONDITIONS, rollout
 
     static = next(c for c in CONDITIONS if c.name == "static")
@@ -36,7 +39,7 @@ def time_modes(policy, pre, post, modes, episodes: int, steps: int, batch: int, 
         seeds = list(range(seed + ep * batch, seed + (ep + 1) * batch))
         for mode in modes:
             policy.config.execution = mode
-            r = rollout(policy, pre, post, static, seeds, steps)
+            r = rollout(policy, pre, post, static, seeds, steps, obs_type(policy))
             times[mode] += r.step_times_ms[1:]  # the first step pays one-off allocations
             episode_means[mode].append(float(np.mean(r.step_times_ms[1:])))
     return {
@@ -62,16 +65,21 @@ def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str
     """Mean ms per control step of each part of the DCDP per-step path (batch 1): the eager parts (frame
     encoding + bank update, dynamic extractor, correction head; ``fast_inference = False``), the compiled
     step that replaces them (``step_kernel.py``, when the corrector has one) and the once-per-chunk work
-    (chunk latent, head terms, kernel check) divided by H."""
-    from lerobot_dcdp.benchmark.rollout import _stack_obs
-    from lerobot_dcdp.sim.envs.pusht_perturbed import make_perturbed_env
-
-    env = make_perturbed_env(obs_type="environment_state_agent_pos")
-    obs, _ = env.reset(seed=100_000)
+    (chunk latent, head terms, kernel check) divided by H; with a keypoint reader in the pre-processor (an
+    image corrector), the reader's estimate from the frame too."""
     from lerobot.envs.utils import preprocess_observation
 
-    batch = pre(preprocess_observation(_stack_obs([obs])))
+    from lerobot_dcdp.benchmark.modes import obs_type
+    from lerobot_dcdp.benchmark.rollout import _stack_obs
+    from lerobot_dcdp.policy.processor_pixel_keypoints import PixelKeypointsProcessorStep
+    from lerobot_dcdp.sim.envs.pusht_perturbed import make_perturbed_env
+
+    env = make_perturbed_env(obs_type=obs_type(policy))
+    obs, _ = env.reset(seed=100_000)
+    raw = preprocess_observation(_stack_obs([obs]))
+    batch = pre(dict(raw))
     env.close()
+    readers = [s for s in getattr(pre, "steps", []) if isinstance(s, PixelKeypointsProcessorStep)]
     cfg = policy.config
     cfg.execution = "dcdp"
     corrector, kernel = policy.corrector, policy.kernel
@@ -114,6 +122,14 @@ def corrector_parts(policy, pre, steps: int = 300, warmup: int = 20) -> dict[str
         if i >= warmup:
             per_chunk.append((time.perf_counter() - t0) * 1e3 / cfg.n_action_steps)
     policy.fast_inference = True
+    for reader in readers:
+        frame = raw[reader.image_key]
+        parts["keypoint reader (pre-processor)"] = []
+        for i in range(warmup + steps):
+            t0 = time.perf_counter()
+            reader.estimate(frame)
+            if i >= warmup:
+                parts["keypoint reader (pre-processor)"].append((time.perf_counter() - t0) * 1e3)
     out = {k: float(np.mean(v)) for k, v in parts.items() if v}
     out["per-chunk work / H"] = float(np.mean(per_chunk))
     return out
@@ -129,7 +145,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument(
         "--modes",
         nargs="+",
-        default=list(MODES),
+        default=list(DEFAULT_MODES),
         choices=MODES,
         help="execution modes to time (object_anchored only when the corrector names an anchor feature)",
     )

@@ -66,11 +66,30 @@ def set_mode(policy: Any, method: str, delay: int = 0) -> None:
     policy.reset()
 
 
+def obs_type(policy: Any) -> str:
+    """The PushT observation type that gives ``policy`` (corrector and base) what it reads and no more: the
+    frame when it reads a camera, the block keypoints when it reads them from the env (not from a keypoint
+    reader in its pre-processor), the agent position always."""
+    from lerobot.configs.types import FeatureType
+
+    feats = {**(policy.base.config.input_features or {}), **(policy.config.input_features or {})}
+    camera = any(f.type is FeatureType.VISUAL for f in feats.values())
+    read = policy.config.keypoint_reader_path  # the keypoints come from the frame
+    keypoints = any(f.type is FeatureType.ENV for f in feats.values()) and not read
+    if camera:
+        return "pixels_environment_state_agent_pos" if keypoints else "pixels_agent_pos"
+    return "environment_state_agent_pos"
+
+
 def runs(method: str, policy: Any) -> bool:
     """Whether ``policy``'s folder can run ``method``: the anchorings need an anchor feature, the gated one a
-    fitted completion gate."""
+    fitted completion gate, BID a base that samples."""
     if method == "object_anchored":
         return bool(policy.config.anchor_feature)
     if method == "gated_anchored":
         return bool(policy.config.anchor_feature) and policy.completion_gate is not None
+    if method == "bid":
+        from lerobot_dcdp.runtime.execution_modes import DETERMINISTIC_BASES
+
+        return policy.config.base_policy_type not in DETERMINISTIC_BASES
     return True

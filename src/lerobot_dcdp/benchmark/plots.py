@@ -28,6 +28,7 @@ COLORS = {
     "object_anchored": "C4",
     "gated_anchored": "C5",
     "dcdp": "C3",
+    "bid": "C6",
 }
 EXPERT_COLOR = "k"
 

@@ -8,7 +8,20 @@ import argparse
 from lerobot_dcdp.benchmark import shipped_model
 from lerobot_dcdp.benchmark.cells import EXPERT
 
-METHODS = ["open_loop", "closed_loop", "temporal_ensemble", "object_anchored", "gated_anchored", "dcdp"]
+METHODS = [
+    "open_loop",
+    "closed_loop",
+    "temporal_ensemble",
+    "object_anchored",
+    "gated_anchored",
+    "dcdp",
+    "bid",
+]
+#: BID's weak reference policy per model label (an early checkpoint of the model's base, same statistics)
+BID_WEAK = {
+    "diffusion": shipped_model("pusht-diffusion-state-weak"),
+    "diffusion_demos": shipped_model("pusht-diffusion-state-weak"),
+}
 DEFAULT_MODELS = {
     "diffusion": shipped_model("pusht-dcdp-state"),
     "diffusion_paper_recipe": shipped_model("pusht-dcdp-state-paper-recipe"),
@@ -36,6 +49,12 @@ DEFAULT_METHODS = {
     "act_demos_late_gated": ["dcdp"],
     "diffusion_anchored_gated": ["gated_anchored"],
     "act_anchored_gated": ["gated_anchored"],
+}
+#: the image protocol's models: the image corrector (its anchoring reads the keypoint reader, from pixels),
+#: and the privileged reference (the bare image base, gated anchoring fed the simulator's keypoints)
+IMAGE_MODELS = {
+    "image": shipped_model("pusht-dcdp-image"),
+    "image_privileged_gated": shipped_model("pusht-diffusion-image-anchored-gated"),
 }
 #: the mild protocol's models: the first two carry the base's rows (open loop, anchoring) too
 MILD_MODELS = (
@@ -73,13 +92,25 @@ def protocols() -> dict[str, dict]:
             "models": {k: DEFAULT_MODELS[k] for k in MILD_MODELS},
             # the others: every method
             "model_methods": {k: DEFAULT_METHODS[k] for k in MILD_MODELS[2:]},
-            "methods": ["open_loop", "object_anchored", "gated_anchored", "dcdp", EXPERT],
+            "methods": ["open_loop", "object_anchored", "gated_anchored", "dcdp", "bid", EXPERT],
             "conditions": MILD_CONDITIONS,
             "episodes": 100,
             "latency_steps": 0,
             "videos": 0,
             "out": "results/benchmark_mild.json",
             "report": "docs/RESULTS_MILD.md",
+            "realtime": None,
+        },
+        "image": {
+            "models": IMAGE_MODELS,
+            "model_methods": {"image_privileged_gated": ["gated_anchored"]},
+            "methods": ["open_loop", "closed_loop", "object_anchored", "gated_anchored", "dcdp"],
+            "conditions": ["static", "constant_0.5", "constant_2.0", "random_2.0"],
+            "episodes": 100,
+            "latency_steps": 300,
+            "videos": 2,
+            "out": "results/benchmark_image.json",
+            "report": "docs/RESULTS_IMAGE.md",
             "realtime": None,
         },
     }

@@ -79,6 +79,15 @@ __all__ = [
 ]
 
 
+#: how the protocol line names each env observation type (``""``: a cell stored before they were recorded)
+OBSERVATIONS = {
+    "": "state + keypoint",
+    "environment_state_agent_pos": "state + keypoint",
+    "pixels_agent_pos": "camera (96x96) + agent position",
+    "pixels_environment_state_agent_pos": "camera (96x96) + agent position + simulator keypoint",
+}
+
+
 def protocol(results: dict) -> str:
     """The protocol line, written from what the cells actually ran (the expert's cells: their own line)."""
     cells = [c for c in results["cells"].values() if c["model"] != EXPERT]
@@ -90,8 +99,10 @@ def protocol(results: dict) -> str:
     eps = sorted({c["episodes"] for c in cells})
     starts = sorted({c["seeds"][0] for c in cells})
     steps = sorted({c["max_steps"] for c in cells})
+    # cells stored before the image protocol carry no obs_type: they read state + keypoints
+    obs = sorted({OBSERVATIONS.get(c.get("obs_type", ""), c.get("obs_type")) for c in cells})
     return (
-        f"- protocol: PushT (gym-pusht), state + keypoint observations, {'/'.join(map(str, eps))} episodes "
+        f"- protocol: PushT (gym-pusht), {' / '.join(obs)} observations, {'/'.join(map(str, eps))} episodes "
         f"per cell from seed {'/'.join(map(str, starts))} (one episode per seed), "
         f"{'/'.join(map(str, steps))} steps max, an episode ends on coverage > 0.95; block drift applied "
         "once per control step (random: direction redrawn every 50 steps from the authors' set); "

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from lerobot_dcdp.benchmark.cells import EXPERT, cell_key
-from lerobot_dcdp.benchmark.modes import load_model, runs, set_mode
+from lerobot_dcdp.benchmark.modes import load_model, obs_type, runs, set_mode
 from lerobot_dcdp.benchmark.protocols import model_methods
 from lerobot_dcdp.benchmark.results_file import ResultsFile, fresh_cell, fresh_expert_cell
 from lerobot_dcdp.benchmark.videos import stash_frames, write_videos
@@ -115,6 +115,8 @@ def run_cell(
         else ()
     )
     set_mode(model.policy, method, delay)
+    weak = getattr(a, "bid_weak", {}).get(model.label) if method == "bid" else None
+    model.policy.use_bid_reference(weak)
     t0 = time.perf_counter()
     res = [
         rollout(
@@ -124,6 +126,7 @@ def run_cell(
             cond,
             seeds[i : i + a.batch_size],
             a.max_steps,
+            obs_type=obs_type(model.policy),
             render_seeds=render,
         )
         for i in range(0, len(seeds), a.batch_size)
@@ -134,6 +137,7 @@ def run_cell(
         "condition": cond.name,
         "inference_delay": delay,
         **cond.env_kwargs(),
+        "obs_type": obs_type(model.policy),
         "episodes": len(seeds),
         "seeds": [seeds[0], seeds[-1]],
         "max_steps": a.max_steps,
@@ -146,6 +150,8 @@ def run_cell(
         "wall_s": round(time.perf_counter() - t0, 1),
         "identity": model.ident,
     }
+    if method == "bid":
+        cell["bid_weak_policy"] = weak
     frames = {s: f for r in res for s, f in r.frames.items()}
     if frames:
         stash_frames(video_dir, model.label, method, cond.name, frames)
@@ -189,7 +195,9 @@ def time_latency(
         for method in methods:
             set_mode(model.policy, method)
             seed = seeds[rnd % len(seeds)]
-            r = rollout(model.policy, model.pre, model.post, static, [seed], a.latency_steps)
+            r = rollout(
+                model.policy, model.pre, model.post, static, [seed], a.latency_steps, obs_type(model.policy)
+            )
             times[method] += r.step_times_ms[1:] if len(r.step_times_ms) > 1 else r.step_times_ms
     for method in methods:
         t = np.array(times[method])

@@ -1,1 +1,2 @@
-"""Datasets: PushT demonstrations, recorded corrections, DAgger and plan converters, FastUMI, atomic folders."""
+"""Datasets: PushT demonstrations, recorded corrections, DAgger and plan converters, FastUMI, atomic
+folders."""

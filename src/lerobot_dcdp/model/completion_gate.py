@@ -24,7 +24,6 @@ from torch import Tensor, nn
 GATED_MODES = ("dcdp", "object_anchored")
 
 
-
 def distance_to_end(points: Tensor, episode_index: Tensor) -> Tensor:
     """Mean keypoint distance (T,) of each frame's object to its place on its episode's last frame (pure).
 

@@ -11,11 +11,18 @@ diffusion policy's image encoder does), not through pooling.
 
 from __future__ import annotations
 
+import json
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import torch
 from lerobot.policies.diffusion.modeling_diffusion import SpatialSoftmax
 from torch import Tensor, nn
+
+#: the files of a reader's folder (``dcdp-fit-pixel-keypoints --out``)
+CONFIG_NAME = "config.json"
+WEIGHTS_NAME = "model.safetensors"
+FIT_NAME = "fit.json"
 
 
 @dataclass
@@ -114,3 +121,21 @@ def keypoint_error(pred: Tensor, target: Tensor) -> Tensor:
         raise ValueError(f"keypoint vectors must match and be (..., 2N), got {pred.shape} / {target.shape}")
     diff = (pred - target).reshape(*pred.shape[:-1], -1, 2)
     return diff.norm(dim=-1).mean()
+
+
+def load_reader(path: str | Path) -> tuple[PixelKeypointNet, str, str]:
+    """A reader saved by ``dcdp-fit-pixel-keypoints`` (eval mode), with its image and target keys.
+
+    Raises:
+        ValueError: ``path`` holds no reader.
+    """
+    from safetensors.torch import load_file
+
+    path = Path(path)
+    if not (path / CONFIG_NAME).is_file() or not (path / WEIGHTS_NAME).is_file():
+        raise ValueError(f"{path} holds no pixel-keypoint reader ({CONFIG_NAME} + {WEIGHTS_NAME})")
+    config = json.loads((path / CONFIG_NAME).read_text())
+    image_key, target_key = config.pop("image_key"), config.pop("target_key")
+    net = PixelKeypointNet(PixelKeypointsConfig(**config))
+    net.load_state_dict(load_file(str(path / WEIGHTS_NAME)))
+    return net.eval(), image_key, target_key

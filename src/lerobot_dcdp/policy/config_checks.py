@@ -13,7 +13,7 @@ import difflib
 
 from lerobot_dcdp.model.completion_gate import GATED_MODES  # noqa: F401  (re-exported: a config check)
 
-EXECUTION_MODES = ("dcdp", "open_loop", "closed_loop", "temporal_ensemble", "object_anchored")
+EXECUTION_MODES = ("dcdp", "open_loop", "closed_loop", "temporal_ensemble", "object_anchored", "bid")
 CORRECTIONS = ("reconstruct", "residual")
 BACKBONES = ("auto", "mlp", "resnet18")
 KERNEL_CHOICES = ("auto", "on", "off")
@@ -235,4 +235,33 @@ def check_network(
 
 
 #: Every option group's check, in the order ``DCDPConfig`` runs them.
-CHECKS = (check_execution, check_planning, check_correction, check_synthesis, check_network)
+def check_bid(
+    *,
+    execution: str,
+    n_action_steps: int,
+    inference_delay: int,
+    bid_samples: int,
+    bid_modes: int,
+    bid_decay: float,
+    bid_replan_every: int,
+    bid_weak_policy_path: str | None,
+) -> None:
+    """Bidirectional Decoding's knobs (checked whatever the mode, so a bad flag fails at once)."""
+    if not _is_int(bid_samples) or bid_samples < 1:
+        raise ValueError(f"bid_samples must be an integer >= 1, got {bid_samples!r}")
+    if not _is_int(bid_modes) or not 1 <= bid_modes <= bid_samples:
+        raise ValueError(f"bid_modes must be an integer in [1, bid_samples={bid_samples}], got {bid_modes!r}")
+    if not bid_decay > 0:
+        raise ValueError(f"bid_decay must be > 0, got {bid_decay}")
+    if not _is_int(bid_replan_every) or not 1 <= bid_replan_every <= n_action_steps:
+        raise ValueError(
+            f"bid_replan_every must be an integer in [1, n_action_steps={n_action_steps}], "
+            f"got {bid_replan_every!r}"
+        )
+    if execution == "bid" and inference_delay:
+        raise ValueError("execution='bid' plans on the tick it acts: it takes no inference_delay")
+    if execution != "bid" and bid_weak_policy_path:
+        raise ValueError(f"bid_weak_policy_path is read by execution='bid' only (execution={execution!r})")
+
+
+CHECKS = (check_execution, check_planning, check_correction, check_synthesis, check_network, check_bid)

@@ -29,7 +29,8 @@ class ExecutionOptions:
             overlapping predictions).
             ``object_anchored`` is a training-free reference: the not-yet-executed part of the chunk is
             carried along with the rigid motion of the object seen in ``anchor_feature`` since the chunk
-            was planned.
+            was planned. ``bid`` samples several chunks at each decision and executes the one BID selects (see
+            ``BidOptions``).
         inference_delay: Control steps d the base takes to answer (beyond the paper; default 0). A chunk
             that starts being used at step t was planned from the observation of step t-d (the first one, at
             t = 0, from step 0), and its entries for the steps already past are skipped, so the base must
@@ -117,6 +118,13 @@ class CorrectionOptions:
             chunks; measured to make the base worse on PushT (docs/FINDINGS.md).
         anchor_feature: Observation key holding an object's keypoints as xy pairs, in the same frame as the
             first two action dims (PushT: ``observation.environment_state``). Needed by ``object_anchored``.
+        keypoint_reader_path: Folder of a frame -> object-keypoints reader (``dcdp-fit-pixel-keypoints``): the
+            pre-processor writes its estimate from the reader's camera to ``anchor_feature`` (or, without one,
+            to the key the reader was fitted to), replacing any keypoints the observation holds, so the
+            corrector, the anchoring and the gate run from pixels and the env or robot gives no keypoints.
+            The corrector then reads the estimate and the other vectors, not the camera (unless
+            ``observation_features`` names it). Read when the policy is built for training; a trained folder
+            keeps the reader's weights in its pre-processor.
         plan_feature: Dataset key of the chunk the base planned at the chunk start, (L, A) raw actions, in
             recorded corrections (``residual`` training only; never read at inference).
         plan_step_feature: Dataset key of the step index s of a frame within its chunk (``residual``).
@@ -172,6 +180,7 @@ class CorrectionOptions:
 
     correction: str = "residual"
     anchor_feature: str | None = None
+    keypoint_reader_path: str | None = None
     plan_feature: str = "observation.dcdp_plan"
     plan_step_feature: str = "observation.dcdp_plan_step"
     plan_delay_feature: str = "observation.dcdp_plan_delay"
@@ -286,4 +295,37 @@ class NetworkOptions:
 
 
 #: Every option group, in the order ``DCDPConfig`` inherits them.
-OPTION_GROUPS = (ExecutionOptions, PlanningOptions, CorrectionOptions, SynthesisOptions, NetworkOptions)
+@dataclass
+class BidOptions:
+    """``execution='bid'``: Bidirectional Decoding (Liu et al., ICLR 2025) over the frozen base, a
+    training-free peer that samples at test time (``lerobot_dcdp.model.bid_selection``). Defaults: the
+    authors' PushT settings.
+
+    Args:
+        bid_samples: Chunks sampled from the base at each decision (15); as many from the weak policy.
+        bid_modes: The backward-coherence filter keeps ``bid_samples // bid_modes`` candidates of each policy
+            (3).
+        bid_decay: Weight ratio of consecutive steps in the backward coherence, the nearest step weighing most
+            (0.5).
+        bid_replan_every: Control steps between two decisions (1: every step, the authors' setting for a
+            perturbed world; at most ``n_action_steps``); the chosen chunk is executed in between.
+        bid_weak_policy_path: The weak reference policy whose samples the chosen chunk keeps away from (e.g.
+            an early checkpoint of the base, with the base's statistics): a ``pretrained_model`` folder. None:
+            backward coherence and the positive term only.
+    """
+
+    bid_samples: int = 15
+    bid_modes: int = 3
+    bid_decay: float = 0.5
+    bid_replan_every: int = 1
+    bid_weak_policy_path: str | None = None
+
+
+OPTION_GROUPS = (
+    ExecutionOptions,
+    PlanningOptions,
+    CorrectionOptions,
+    SynthesisOptions,
+    NetworkOptions,
+    BidOptions,
+)

@@ -17,6 +17,7 @@ from lerobot_dcdp.policy.config_checks import (  # the choice tuples stay import
 )
 from lerobot_dcdp.policy.config_options import (
     OPTION_GROUPS,
+    BidOptions,
     CorrectionOptions,
     ExecutionOptions,
     NetworkOptions,
@@ -30,7 +31,13 @@ __all__ = ["CORRECTIONS", "EXECUTION_MODES", "DCDPConfig"]
 @PreTrainedConfig.register_subclass("dcdp")
 @dataclass
 class DCDPConfig(
-    PreTrainedConfig, ExecutionOptions, PlanningOptions, CorrectionOptions, SynthesisOptions, NetworkOptions
+    PreTrainedConfig,
+    ExecutionOptions,
+    PlanningOptions,
+    CorrectionOptions,
+    SynthesisOptions,
+    NetworkOptions,
+    BidOptions,
 ):
     """Configuration of a DCDP corrector wrapped around a frozen chunking base policy.
 
@@ -40,15 +47,14 @@ class DCDPConfig(
     correction to the planned action (``correction='residual'``); the paper's GRU decoder re-decodes it
     (``correction='reconstruct'``).
 
-    The options are grouped by concern in :mod:`lerobot_dcdp.policy.config_options`, one dataclass each,
-    which this
-    class inherits (the flags stay flat: ``--policy.planning``, ``--policy.motion_label``, ...):
+    The options are grouped by concern in :mod:`lerobot_dcdp.policy.config_options`, one dataclass each, which
+    this class inherits (the flags stay flat: ``--policy.planning``, ``--policy.motion_label``, ...):
     ``ExecutionOptions`` (the base, the chunk, the execution mode), ``PlanningOptions`` (synchronous or
     asynchronous planning, local or remote base, control rate), ``CorrectionOptions`` (the correction recipe,
-    anchor keypoints, compiled path, completion gate), ``SynthesisOptions`` (stage 1 on plain demonstrations)
-    and ``NetworkOptions`` (the corrector's networks and loss weights). Each is validated by the pure check of
-    the same concern in :mod:`lerobot_dcdp.policy.config_checks`. Their ``Args:`` follow this docstring in
-    ``lerobot-train --policy.type=dcdp --help``.
+    anchor keypoints, compiled path, completion gate), ``SynthesisOptions`` (stage 1 on plain demonstrations),
+    ``NetworkOptions`` (the corrector's networks and loss weights) and ``BidOptions`` (the BID peer). Each is
+    validated by the pure check of the same concern in :mod:`lerobot_dcdp.policy.config_checks`. Their
+    ``Args:`` follow this docstring in ``lerobot-train --policy.type=dcdp --help``.
 
     Args:
         optimizer_lr: AdamW learning rate (the residual recipe's 1e-3; authors and the paper preset: 1e-4).
@@ -151,14 +157,18 @@ class DCDPConfig(
 
     @property
     def corrector_features(self) -> list[str]:
-        """Observation keys the corrector reads (``observation_features`` or every observation input)."""
+        """Observation keys the corrector reads: ``observation_features``, or every observation input (the
+        cameras excepted when a keypoint reader gives their estimate)."""
         if self.observation_features:
             return list(self.observation_features)
         skip = self.plan_columns
+        cameras_too = not self.keypoint_reader_path  # with a reader, the camera reaches it as keypoints
         return [
             k
             for k, ft in (self.input_features or {}).items()
-            if ft.type is not FeatureType.ACTION and k not in skip
+            if ft.type is not FeatureType.ACTION
+            and k not in skip
+            and (cameras_too or ft.type is not FeatureType.VISUAL)
         ]
 
     @property

@@ -38,6 +38,7 @@ def load_dcdp(
     config: DCDPConfig | None = None,
     device: str | None = None,
     extra_inputs: dict | None = None,
+    keypoint_reader: str | Path | None = None,
 ) -> LoadedPolicy:
     """Load a DCDP policy from a corrector folder (``path``) or around a bare base (``base``).
 
@@ -51,6 +52,9 @@ def load_dcdp(
         extra_inputs: Around a bare base, observation features (key -> ``PolicyFeature``) the wrapper reads
             beside the base's own, e.g. the object's keypoints an image base never reads but the training-free
             anchoring does.
+        keypoint_reader: Around a bare base, a frame -> keypoints reader's folder (``keypoint_reader_path``):
+            the pre-processor writes the object's keypoints estimated from the camera (training-free
+            anchoring from pixels).
 
     Returns:
         The policy in eval mode with its pre- and post-processor.
@@ -70,12 +74,17 @@ def load_dcdp(
     else:
         if execution == "dcdp":
             raise ValueError("execution='dcdp' needs a trained corrector: pass its folder, not a bare base")
-        cfg = DCDPConfig(base_policy_path=str(base), anchor_feature=anchor_feature, device=device or "cpu")
-        if extra_inputs:
+        cfg = DCDPConfig(
+            base_policy_path=str(base),
+            anchor_feature=anchor_feature,
+            device=device or "cpu",
+            keypoint_reader_path=str(keypoint_reader) if keypoint_reader else None,
+        )
+        if extra_inputs or keypoint_reader:
             from lerobot.configs.policies import PreTrainedConfig
 
             base_config = PreTrainedConfig.from_pretrained(str(base))
-            cfg.input_features = {**base_config.input_features, **extra_inputs}
+            cfg.input_features = {**base_config.input_features, **(extra_inputs or {})}
             cfg.output_features = dict(base_config.output_features)
         policy = DCDPPolicy(cfg)
     if execution is not None:

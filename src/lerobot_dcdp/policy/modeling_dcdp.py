@@ -37,10 +37,12 @@ from lerobot_dcdp.policy.base_policy import (
     check_against_base,
     load_base_policy,
     load_base_stats,
+    load_reference_policy,
 )
 from lerobot_dcdp.policy.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.policy.observation_check import ObservationCheck
 from lerobot_dcdp.policy.policy_folder import BaseMismatchError, CorrectorFolder
+from lerobot_dcdp.policy.processor_pixel_keypoints import declare_reader_output
 from lerobot_dcdp.runtime.chunk_sources import ChunkSource, make_chunk_source
 from lerobot_dcdp.runtime.execution_modes import make_execution_modes
 from lerobot_dcdp.runtime.kernel_runner import KernelRunner
@@ -74,6 +76,7 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
             config.input_features = {
                 k: v for k, v in config.input_features.items() if k not in config.plan_columns
             }
+        declare_reader_output(config)
         check_against_base(config, base, self.source.chunk_length, self.source.max_length)
         config.validate_features()
 
@@ -117,9 +120,23 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
         self.lead = SceneLead(config, self.normalizer)
         self.kernel = KernelRunner(self.corrector) if config.correction == "residual" else None
         self.modes = make_execution_modes(config, self.corrector, self.kernel, anchor)
+        if config.bid_weak_policy_path:
+            self.use_bid_reference(config.bid_weak_policy_path)
         self._sync = SyncPlanning(config, self.source, anchor)
         self._async = AsyncPlanning(config, self.source, anchor)
         self.reset()
+
+    def use_bid_reference(self, path: str | None) -> None:
+        """Give ``execution='bid'`` the weak reference policy in ``path`` (checked against the base:
+        :func:`~lerobot_dcdp.policy.base_policy.load_reference_policy`); None: none from now on."""
+        weak = None
+        if path:
+            cfg = self.config
+            base_ref = cfg.base_policy_path
+            weak = load_reference_policy(path, self._base, base_ref, cfg.device, cfg.pretrained_path)
+        object.__setattr__(self, "_weak", weak)  # frozen like the base: not a submodule
+        self.modes["bid"].weak = make_chunk_source(weak) if weak is not None else None
+        self.config.bid_weak_policy_path = path
 
     # ------------------------------------------------------------------ the base
     @property
@@ -141,6 +158,8 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
     def to(self, *args, **kwargs):
         super().to(*args, **kwargs)
         self._base.to(*args, **kwargs)
+        if getattr(self, "_weak", None) is not None:
+            self._weak.to(*args, **kwargs)
         return self
 
     def get_optim_params(self) -> list[torch.nn.Parameter]:
@@ -182,6 +201,8 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
     def reset(self) -> None:
         """Start a new episode: clear the history bank and the chunk state, and reset the base."""
         self.source.reset()
+        for mode in self.modes.values():
+            mode.reset()
         self._async.cancel()
         self.state: EpisodeState = new_episode(self.config)
         self.lead.reset()

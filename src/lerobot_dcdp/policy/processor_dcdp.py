@@ -13,6 +13,11 @@ the training dataset: it loads the base's ``policy_preprocessor.json`` / ``polic
    (:class:`~lerobot_dcdp.policy.processor_check_observation.CheckObservationProcessorStep`), which
    refuses a feature of the wrong shape with one ``ValueError`` naming it, before LeRobot's normaliser
    fails on it with a bare broadcasting error.
+
+With ``keypoint_reader_path`` a third step, ``dcdp_pixel_keypoints``
+(:class:`~lerobot_dcdp.policy.processor_pixel_keypoints.PixelKeypointsProcessorStep`), sits between the two:
+it writes the object's keypoints estimated from the camera frame, which the check and everything after it
+read.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from lerobot.processor.converters import (
 from lerobot_dcdp.policy.base_policy import resolve_base_reference
 from lerobot_dcdp.policy.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.policy.processor_check_observation import CheckObservationProcessorStep
+from lerobot_dcdp.policy.processor_pixel_keypoints import PixelKeypointsProcessorStep, reader_step
 from lerobot_dcdp.policy.processor_split_state import SplitStateProcessorStep
 
 
@@ -46,7 +52,8 @@ def make_dcdp_pre_post_processors(
 
     The pre-processor starts with :class:`SplitStateProcessorStep` for ``config.input_features`` when the
     policy has ``observation.state`` and another vector input (a split step the base already has is
-    replaced), then :class:`CheckObservationProcessorStep` for the policy's input features (the recorded
+    replaced), then the keypoint reader's step when the config names a reader, then
+    :class:`CheckObservationProcessorStep` for the policy's input features (the recorded
     plan columns excepted; a check step the base already has is replaced), then the base's own steps.
     """
     if dataset_stats is not None:
@@ -66,12 +73,20 @@ def make_dcdp_pre_post_processors(
             step.device = config.device
             step.__post_init__()
     steps = [s for s in pre.steps if not isinstance(s, CheckObservationProcessorStep)]
-    split = SplitStateProcessorStep.from_features(config.input_features)
+    reader = reader_step(config)
+    own = {  # what the env or robot gives: not the reader's estimate
+        k: v for k, v in (config.input_features or {}).items() if reader is None or k != reader.output_key
+    }
+    split = SplitStateProcessorStep.from_features(own)
     if split is not None:
         steps = [split, *(s for s in steps if not isinstance(s, SplitStateProcessorStep))]
+    steps = [s for s in steps if not isinstance(s, PixelKeypointsProcessorStep)]
+    after_split = 1 if steps and isinstance(steps[0], SplitStateProcessorStep) else 0
     check = CheckObservationProcessorStep.from_features(config.input_features, skip=config.plan_columns)
     if check is not None:  # right after the split (the base's own split when it has one and we none)
-        steps.insert(1 if steps and isinstance(steps[0], SplitStateProcessorStep) else 0, check)
+        steps.insert(after_split, check)
+    if reader is not None:  # between the split and the check: the check sees the estimate
+        steps.insert(after_split, reader)
     pre = PolicyProcessorPipeline(
         steps=steps, name=pre.name, to_transition=batch_to_transition, to_output=transition_to_batch
     )

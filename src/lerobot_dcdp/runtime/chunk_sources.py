@@ -4,7 +4,8 @@ Every adapter offers ``reset()``, ``observe(batch) -> prepared`` (called once pe
 newest normalised observation; returns the batch in the form the base reads),
 ``chunk(prepared, length) -> (B, length, A)`` (normalised actions starting at the observation's step) and
 ``chunk_from(prepared, snapshot, length)`` (the chunk the base plans from an earlier step's observation and
-history: a base that answers late). They call the base's own public methods so the base runs exactly as
+history: a base that answers late) and ``samples(prepared, n, length)`` (``n`` chunks drawn at once, for a
+sampling base's test-time selection). They call the base's own public methods so the base runs exactly as
 LeRobot runs it.
 """
 
@@ -112,6 +113,21 @@ class ChunkSource:
         finally:
             self.restore(now)
 
+    def samples(self, prepared: dict[str, Tensor], n: int, length: int | None = None) -> Tensor:
+        """``n`` chunks (B, n, length, A) sampled from the same observation and history: one call of the base
+        on a batch repeated ``n`` times (a sampling base draws each one's noise on its own). The history is
+        the same afterwards."""
+        now = self.snapshot()
+        if now is not None:
+            self.base._queues = {
+                k: type(q)((_repeat(x, n) for x in q), maxlen=q.maxlen) for k, q in now.items()
+            }
+        try:
+            chunks = self.chunk({k: _repeat(v, n) for k, v in prepared.items()}, length)
+        finally:
+            self.restore(now)
+        return chunks.reshape(-1, n, *chunks.shape[1:])
+
     def _check_length(self, length: int | None) -> int:
         length = self.chunk_length if length is None else length
         if not 1 <= length <= self.max_length:
@@ -132,6 +148,11 @@ def _kept_actions(cfg, n: int):
         yield
     finally:
         cfg.n_action_steps = kept
+
+
+def _repeat(x, n: int):
+    """Each batch entry of a tensor repeated ``n`` times in a row (B*n, ...); anything else as it is."""
+    return x.repeat_interleave(n, dim=0) if isinstance(x, Tensor) else x
 
 
 def _without_action(batch: dict[str, Tensor]) -> dict[str, Tensor]:

@@ -1,8 +1,9 @@
 """When the base plans and which chunk each control step executes: synchronous and asynchronous planning.
 
 ``SyncPlanning`` (``--policy.planning=sync``): the base plans on the control step itself, every H steps (every
-step for the per-step modes); with ``inference_delay`` d the chunk is the one a base answering d steps late
-would deliver (planned from the observation d steps back, its first d entries skipped).
+step for the per-step modes, every ``bid_replan_every`` for ``bid``: the mode's ``plan_period``); with
+``inference_delay`` d the chunk is the one a base answering d steps late would deliver (planned from the
+observation d steps back, its first d entries skipped).
 ``AsyncPlanning`` (``planning=async``): the base plans the next chunk on a worker thread
 (:class:`~lerobot_dcdp.runtime.planner.BackgroundPlanner`) while every step returns an action of the current
 chunk
@@ -48,7 +49,7 @@ class SyncPlanning:
     def act(self, state: EpisodeState, batch: dict[str, Tensor], mode: ExecutionMode) -> Tensor:
         """This step's action (B, A), base-normalised."""
         prepared = self.source.observe(batch)
-        switching = mode.replans_every_step or state.step == 0
+        switching = state.step == 0  # a mode's plan period starts
         mode.observe(state, batch, switching)
         if self.config.inference_delay:
             state.past.append(
@@ -63,12 +64,9 @@ class SyncPlanning:
         if switching:
             mode.begin_chunk(state, self._chunk(state, prepared, batch, mode))
         state.t += 1
-        if mode.replans_every_step:
-            state.last_step = 0
-            return mode.act(state, 0, batch)
         step = state.step
         state.last_step = step
-        state.step = (step + 1) % self.config.n_action_steps
+        state.step = (step + 1) % mode.plan_period
         return mode.act(state, step, batch)
 
     def _chunk(
@@ -80,7 +78,7 @@ class SyncPlanning:
             state.at_plan = state.rep
             state.anchor_plan = self.anchor.points(batch) if mode.anchored else None
             state.chunk_delay = 0
-            return self.source.chunk(prepared, length)
+            return mode.plan(state, self.source, prepared, length)
         then = state.past[0]
         skip = state.chunk_delay = state.t - then["t"]
         length = min((length or self.source.chunk_length) + skip, self.source.max_length)

@@ -27,11 +27,14 @@ import torch
 from torch import Tensor
 
 from lerobot_dcdp.data.atomic_dataset import staged_dir
-from lerobot_dcdp.model.pixel_keypoints import PixelKeypointNet, PixelKeypointsConfig, keypoint_error
-
-CONFIG_NAME = "config.json"
-WEIGHTS_NAME = "model.safetensors"
-FIT_NAME = "fit.json"
+from lerobot_dcdp.model.pixel_keypoints import (
+    CONFIG_NAME,
+    FIT_NAME,
+    WEIGHTS_NAME,
+    PixelKeypointNet,
+    PixelKeypointsConfig,
+    keypoint_error,
+)
 
 
 def load_frames(dataset, image_key: str, target_key: str) -> tuple[Tensor, Tensor, Tensor]:
@@ -143,24 +146,6 @@ def save_reader(net: PixelKeypointNet, out: Path, image_key: str, target_key: st
         (tmp / CONFIG_NAME).write_text(json.dumps(config, indent=2) + "\n")
         save_file({k: v.contiguous() for k, v in net.state_dict().items()}, str(tmp / WEIGHTS_NAME))
         (tmp / FIT_NAME).write_text(json.dumps(fit_info, indent=2) + "\n")
-
-
-def load_reader(path: str | Path) -> tuple[PixelKeypointNet, str, str]:
-    """A saved reader (eval mode) and its image and target keys.
-
-    Raises:
-        ValueError: ``path`` holds no reader.
-    """
-    from safetensors.torch import load_file
-
-    path = Path(path)
-    if not (path / CONFIG_NAME).is_file() or not (path / WEIGHTS_NAME).is_file():
-        raise ValueError(f"{path} holds no pixel-keypoint reader ({CONFIG_NAME} + {WEIGHTS_NAME})")
-    config = json.loads((path / CONFIG_NAME).read_text())
-    image_key, target_key = config.pop("image_key"), config.pop("target_key")
-    net = PixelKeypointNet(PixelKeypointsConfig(**config))
-    net.load_state_dict(load_file(str(path / WEIGHTS_NAME)))
-    return net.eval(), image_key, target_key
 
 
 def build_parser() -> argparse.ArgumentParser:
