@@ -110,8 +110,9 @@ def test_bid_with_a_weak_policy_runs_and_refuses_what_it_cannot_compare(diffusio
     policy.reset()
     for _ in range(3):
         assert policy.select_action(_observation()).shape == (1, 2)
-    with pytest.raises(ValueError, match="normalises .* otherwise than the base"):
-        _bid_policy(diffusion_base, bid_weak_policy_path=str(act_base))
+    other = _bid_policy(diffusion_base, bid_samples=3, bid_weak_policy_path=str(act_base))  # other stats
+    other.reset()
+    assert other.select_action(_observation()).shape == (1, 2)
     act = _bid_policy(act_base)
     act.reset()
     with pytest.raises(ValueError, match="base type 'act' returns the same chunk"):
@@ -122,6 +123,41 @@ def test_bid_with_a_weak_policy_runs_and_refuses_what_it_cannot_compare(diffusio
         DCDPConfig(base_policy_path=str(diffusion_base), bid_weak_policy_path=str(diffusion_base))
     with pytest.raises(ValueError, match="execution='bid' plans on the tick"):
         DCDPConfig(base_policy_path=str(diffusion_base), execution="bid", inference_delay=1)
+
+
+class _EchoPolicy:
+    """A stand-in policy whose 4-step chunk repeats the (normalised) state it reads as its action."""
+
+    def __init__(self) -> None:
+        from types import SimpleNamespace
+
+        self.config = SimpleNamespace(type="echo", chunk_size=4)
+
+    def reset(self) -> None:
+        pass
+
+    def predict_action_chunk(self, batch):
+        return batch["observation.state"].unsqueeze(1).repeat(1, 4, 1)
+
+
+def test_a_weak_policy_on_other_statistics_is_fed_and_read_in_the_bases_units() -> None:
+    """Observations are mapped into the weak policy's normalisation and its chunks back, exactly: an echo
+    policy whose action and state share statistics returns our own normalised state."""
+    from lerobot_dcdp.model.base_normalizer import BaseNormalizer
+    from lerobot_dcdp.runtime.chunk_sources import RenormalizedSource
+
+    def min_max(lo: list[float], hi: list[float]) -> BaseNormalizer:
+        mm = {"min": torch.tensor(lo), "max": torch.tensor(hi)}
+        return BaseNormalizer({"observation.state": ("MIN_MAX", mm), "action": ("MIN_MAX", mm)})
+
+    ours, theirs = min_max([0.0, 0.0], [512.0, 512.0]), min_max([10.0, 20.0], [400.0, 480.0])
+    source = RenormalizedSource(_EchoPolicy(), ours, theirs)
+    x = ours("observation.state", torch.tensor([[100.0, 300.0]]))
+    chunk = source.chunk(source.observe({"observation.state": x}), 4)
+    torch.testing.assert_close(chunk, x.unsqueeze(1).repeat(1, 4, 1))
+    fed = source.observe({"observation.state": x})["observation.state"]
+    torch.testing.assert_close(fed, theirs("observation.state", torch.tensor([[100.0, 300.0]])))
+    assert not torch.allclose(fed, x)  # the weak policy read its own normalisation, not ours
 
 
 def test_bid_around_a_bare_base_is_loadable(diffusion_base) -> None:

@@ -138,3 +138,76 @@ def test_a_recording_without_interventions_is_refused(diffusion_base, demo_root,
         dagger_to_corrections(
             diffusion_base, "local/test", demo_root, "x/y", tmp_path / "o", autonomous_label="x"
         )
+
+
+def _record_camera_dagger(root: Path, episodes: int = 3, length: int = 10) -> None:
+    """A DAgger recording of a camera robot: a 96x96 video camera seeing a square that moves with the state
+    (and a tint that changes every frame, so frames cannot be confused), the action sent and
+    ``intervention`` (the person drives frames 3..5 of each episode)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    features = {
+        "observation.image": {
+            "dtype": "video",
+            "shape": (96, 96, 3),
+            "names": ["height", "width", "channels"],
+        },
+        "observation.state": {"dtype": "float32", "shape": (2,), "names": ["x", "y"]},
+        "action": {"dtype": "float32", "shape": (2,), "names": ["x", "y"]},
+        "intervention": {"dtype": "bool", "shape": (1,), "names": None},
+    }
+    ds = LeRobotDataset.create("user/cam_dagger", fps=10, features=features, root=root, use_videos=True)
+    yy, xx = np.mgrid[0:96, 0:96]
+    for e in range(episodes):
+        for t in range(length):
+            x, y, person = 10 + 6 * t, 20 + 10 * e, 3 <= t < 6
+            img = np.stack([xx * 2, yy * 2, np.full_like(xx, 20 + 22 * t)], -1).astype(np.uint8)
+            img[y : y + 20, x : x + 20] = (230, 40, 40)
+            ds.add_frame(
+                {
+                    "observation.image": img,
+                    "observation.state": np.array([x, y], np.float32),
+                    "action": np.array([x + (-3 if person else 6), y], np.float32),
+                    "intervention": np.array([person]),
+                    "task": "push the square",
+                }
+            )
+        ds.save_episode()
+    ds.finalize()
+
+
+def test_a_camera_dagger_recording_keeps_its_frames_for_an_image_base(tmp_path) -> None:
+    from helpers import make_tiny_base
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_dcdp.data.dagger_corrections import _cameras, dagger_to_corrections
+
+    rec, out = tmp_path / "rec", tmp_path / "corrections"
+    _record_camera_dagger(rec)
+    # a stock diffusion base reading the camera and the state (random init: what it plans is not checked)
+    base = make_tiny_base("diffusion", tmp_path / "base", rec, images=True, num_inference_steps=2)
+    counts = dagger_to_corrections(base, "user/cam_dagger", rec, "local/cam_corr", out, n_action_steps=4)
+    assert counts == {"episodes": 3, "frames": 30, "intervention_frames": 9, "chunks": 9}
+    src, ds = LeRobotDataset("user/cam_dagger", root=rec), LeRobotDataset("local/cam_corr", root=out)
+    camera = ds.meta.features["observation.image"]
+    assert camera["dtype"] == "video" and tuple(camera["shape"]) == (96, 96, 3)
+    previous = None
+    for i in range(len(ds)):
+        a, b = src[i], ds[i]
+        error = (b["observation.image"] - a["observation.image"]).abs().mean()
+        assert error < 0.05  # the recorded frame, re-encoded
+        if i % 10:  # and not its predecessor
+            assert error < (b["observation.image"] - previous).abs().mean()
+        previous = a["observation.image"]
+        assert torch.equal(b["observation.state"], a["observation.state"])
+        plan, step = b["observation.dcdp_plan"].reshape(-1, 2), int(b["observation.dcdp_plan_step"])
+        assert plan.shape == (8, 2) and plan.abs().sum() > 0
+        label = a["action"] if bool(a["intervention"]) else plan[step]
+        assert torch.equal(b["action"], label)  # the person's action where the person drove
+    cfg = PreTrainedConfig.from_pretrained(base)
+    with pytest.raises(ValueError, match="the camera 'observation.image', which the recording lacks"):
+        _cameras(cfg, {})
+    depth = {"dtype": "video", "shape": (96, 96, 1), "names": None, "info": {"is_depth_map": True}}
+    with pytest.raises(ValueError, match="camera 'observation.image' .* is not an RGB image"):
+        _cameras(cfg, {"observation.image": depth})

@@ -16,9 +16,12 @@ command rebuilds them with the frozen base:
   action itself (``--autonomous-label=plan``: the person let the robot go on, so the chunk needed no
   correction) or the action the robot sent (``executed``: when a trained corrector drove, its own output).
 
-A robot whose state ``lerobot-rollout`` flattened into one ``observation.state`` (``pusht_sim``: agent and
-block keypoints, 18 values) is cut back into the base's vector inputs (``dcdp_split_state``'s rule). The
-recorded action is kept as ``executed_action``. Vector observations only (no camera features yet).
+The base's inputs are copied: vectors, and cameras (RGB ``image`` or ``video`` features, kept as recorded:
+dtype, shape, names; a video camera is re-encoded, so a person's DAgger session on a camera robot trains an
+image corrector too). A robot whose state ``lerobot-rollout`` flattened into one ``observation.state``
+(``pusht_sim``: agent and block keypoints, 18 values) is cut back into the base's vector inputs
+(``dcdp_split_state``'s rule). The recorded action is kept as ``executed_action``. A base input of any other
+kind (language, depth maps, ...) is refused by name.
 
     dcdp-dagger-to-corrections --base models/pusht-diffusion-state --repo-id user/rollout_dagger \\
         --root data/rollout_dagger --out-repo-id local/dagger_corrections --out-root data/dagger_corrections
@@ -28,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -58,17 +62,55 @@ def chunk_starts(intervention: np.ndarray, horizon: int) -> np.ndarray:
     return starts
 
 
+def _cameras(base_config, features: dict) -> list[str]:
+    """The base's camera inputs, each an RGB ``image`` or ``video`` feature of the recording.
+
+    Raises:
+        ValueError: a camera the recording lacks, stores as something else, or that is not RGB (a depth map).
+    """
+    from lerobot.configs.types import FeatureType
+
+    cameras = [k for k, f in base_config.input_features.items() if f.type is FeatureType.VISUAL]
+    recorded = sorted(k for k, f in features.items() if f["dtype"] in ("image", "video"))
+    for key in cameras:
+        if key not in features:
+            raise ValueError(
+                f"the base reads the camera {key!r}, which the recording lacks (its cameras: {recorded})"
+            )
+        ft = features[key]
+        shape = tuple(ft["shape"])
+        if ft["dtype"] not in ("image", "video"):
+            raise ValueError(f"the base reads {key!r} as a camera; the recording stores it as {ft['dtype']}")
+        if (ft.get("info") or {}).get("is_depth_map") or len(shape) != 3 or 3 not in (shape[0], shape[2]):
+            raise ValueError(
+                f"the recording's camera {key!r} ({ft['dtype']} of shape {shape}) is not an RGB image: "
+                "dcdp-dagger-to-corrections copies RGB cameras only (no depth maps)"
+            )
+    return cameras
+
+
 def _vector_splits(base_config, features: dict) -> list[tuple[str, int]] | None:
     """The base's vector inputs as ``dcdp_split_state`` splits when the dataset flattened them into
-    ``observation.state``; ``None`` when the dataset already holds every one."""
+    ``observation.state``; ``None`` when the dataset already holds every one.
+
+    Raises:
+        ValueError: a base input that is neither a vector nor a camera (named), or a recording whose
+            ``observation.state`` cannot be cut into the base's vectors.
+    """
+    from lerobot.configs.types import FeatureType
+
     from lerobot_dcdp.policy.processor_split_state import VECTOR_FEATURE_TYPES
 
     vectors = [
         (k, int(f.shape[0])) for k, f in base_config.input_features.items() if f.type in VECTOR_FEATURE_TYPES
     ]
-    others = [k for k, f in base_config.input_features.items() if f.type not in VECTOR_FEATURE_TYPES]
+    copied = (*VECTOR_FEATURE_TYPES, FeatureType.VISUAL)
+    others = {k: f.type.value for k, f in base_config.input_features.items() if f.type not in copied}
     if others:
-        raise ValueError(f"the base reads {others}; dcdp-dagger-to-corrections handles vector inputs only")
+        raise ValueError(
+            f"the base reads {others}; dcdp-dagger-to-corrections copies vector (STATE, ENV) and camera "
+            "(VISUAL) inputs only"
+        )
     if all(k in features for k, _ in vectors):
         return None
     vectors.sort(key=lambda kv: kv[0] != "observation.state")
@@ -117,15 +159,22 @@ def _open_recording(
 
 
 def _corrections_features(
-    features: dict, first: dict, keys: list[str], as_recorded: bool, plan_width: int
+    features: dict, first: dict, keys: list[str], cameras: list[str], as_recorded: bool, plan_width: int
 ) -> dict[str, dict]:
-    """The corrections dataset's features: the base's inputs ``keys`` (as recorded, names kept, when
-    ``as_recorded``; else float32 of ``first``'s shapes), the plan and its step, the label ``action``,
+    """The corrections dataset's features: the base's vector inputs ``keys`` (as recorded, names kept, when
+    ``as_recorded``; else float32 of ``first``'s shapes), its ``cameras`` (as recorded: dtype, shape, names;
+    the video ``info`` is rewritten by the encoder), the plan and its step, the label ``action``,
     ``executed_action`` and ``intervention``."""
     action_dim = int(features["action"]["shape"][0])
     spec = {k: {"dtype": "float32", "shape": tuple(first[k].shape), "names": None} for k in keys}
     if as_recorded:
         spec = {k: {**features[k], "shape": tuple(features[k]["shape"])} for k in keys}
+    for k in cameras:
+        spec[k] = {
+            "dtype": features[k]["dtype"],
+            "shape": tuple(features[k]["shape"]),
+            "names": features[k]["names"],
+        }
     spec.update(
         {
             "observation.dcdp_plan": {"dtype": "float32", "shape": (plan_width,), "names": None},
@@ -138,34 +187,50 @@ def _corrections_features(
     return spec
 
 
+def _camera_frame(image: torch.Tensor) -> np.ndarray:
+    """A camera frame as ``LeRobotDataset`` returns it, (C, H, W) float in [0, 1], as (H, W, C) uint8.
+
+    Rounded here: ``add_frame`` would truncate ``x * 255`` and darken a shade on the way (an ``image`` camera
+    is copied exactly this way).
+    """
+    return (image.clamp(0, 1) * 255).round().to(torch.uint8).permute(1, 2, 0).numpy()
+
+
 def _write_episode(
-    out, frames: list[dict], rows: np.ndarray, plans: np.ndarray, keys: list[str], horizon: int, label: str
-) -> tuple[int, int]:
-    """Add one episode's frames (indices ``rows`` of ``frames``) to ``out`` with their chunk's plan, step and
-    label (:func:`chunk_starts`; ``label`` is ``--autonomous-label``) and save it; returns its intervention
-    frames and chunks."""
-    action_dim = int(frames[rows[0]]["action"].shape[-1])
-    chunk_length = plans.shape[1] // action_dim
-    taken = np.array([bool(frames[i][INTERVENTION].reshape(-1)[0]) for i in rows])
+    out,
+    read: Callable[[int], dict],
+    rows: np.ndarray,
+    taken: np.ndarray,
+    plans: np.ndarray,
+    keys: list[str],
+    cameras: list[str],
+    horizon: int,
+    label: str,
+) -> int:
+    """Add one episode's frames (``read(i)`` for ``i`` in ``rows``, ``taken``: the person drove) to ``out``
+    with their chunk's plan, step and label (:func:`chunk_starts`; ``label`` is ``--autonomous-label``) and
+    save it; returns its chunks."""
     starts = rows[chunk_starts(taken, horizon)]
     for i, start, person in zip(rows, starts, taken, strict=True):
+        frame = read(int(i))
         step = int(i - start)
         plan = plans[start]
-        executed = frames[i]["action"].numpy().astype(np.float32)
-        target = executed if person or label == "executed" else plan.reshape(chunk_length, action_dim)[step]
+        executed = frame["action"].numpy().astype(np.float32)
+        target = executed if person or label == "executed" else plan.reshape(-1, executed.shape[-1])[step]
         out.add_frame(
             {
-                **{k: frames[i][k].numpy().astype(np.float32) for k in keys},
+                **{k: frame[k].numpy().astype(np.float32) for k in keys},
+                **{k: _camera_frame(frame[k]) for k in cameras},
                 "observation.dcdp_plan": plan,
                 "observation.dcdp_plan_step": np.array([step], dtype=np.float32),
                 "action": np.asarray(target, dtype=np.float32),
                 "executed_action": executed,
                 INTERVENTION: np.array([person]),
-                "task": frames[i]["task"],
+                "task": frame["task"],
             }
         )
     out.save_episode()
-    return int(taken.sum()), len(np.unique(starts))
+    return len(np.unique(starts))
 
 
 def dagger_to_corrections(
@@ -209,8 +274,9 @@ def dagger_to_corrections(
     )
     features = dataset.meta.features
     splits = _vector_splits(base_cfg, features)
+    cameras = _cameras(base_cfg, features)
     split = None if splits is None else SplitStateProcessorStep(splits=splits)
-    keys = [k for k, _ in splits] if splits else list(base_cfg.input_features)
+    keys = [k for k, _ in splits] if splits else [k for k in base_cfg.input_features if k not in cameras]
 
     def transform(frame: dict) -> dict:
         if split is None:
@@ -221,9 +287,14 @@ def dagger_to_corrections(
     chunk_length = plans.shape[1] // int(features["action"]["shape"][0])
     if horizon > chunk_length:
         raise ValueError(f"n_action_steps={horizon} exceeds the base's chunk of {chunk_length} actions")
-    frames = [transform(dataset[i]) for i in range(len(dataset))]
-    episode_of = np.array([int(f["episode_index"]) for f in frames])
-    spec = _corrections_features(features, frames[0], keys, split is None, plans.shape[1])
+
+    def read(i: int) -> dict:
+        return transform(dataset[i])
+
+    # frames are read one at a time while written (a camera recording does not fit in memory)
+    episode_of = np.asarray(dataset.hf_dataset["episode_index"]).reshape(-1)
+    person = np.asarray(dataset.hf_dataset[INTERVENTION]).reshape(-1).astype(bool)
+    spec = _corrections_features(features, read(0), keys, cameras, split is None, plans.shape[1])
     counts = {"episodes": 0, "frames": 0, "intervention_frames": 0, "chunks": 0}
     with staged_dir(Path(out_root)) as built:
         out = LeRobotDataset.create(
@@ -232,14 +303,15 @@ def dagger_to_corrections(
             features=spec,
             root=built,
             robot_type=dataset.meta.robot_type,
-            use_videos=False,
+            use_videos=any(features[k]["dtype"] == "video" for k in cameras),
         )
         for e in np.unique(episode_of):
             rows = np.flatnonzero(episode_of == e)
-            by_person, chunks = _write_episode(out, frames, rows, plans, keys, horizon, autonomous_label)
+            taken = person[rows]
+            chunks = _write_episode(out, read, rows, taken, plans, keys, cameras, horizon, autonomous_label)
             counts["episodes"] += 1
             counts["frames"] += len(rows)
-            counts["intervention_frames"] += by_person
+            counts["intervention_frames"] += int(taken.sum())
             counts["chunks"] += chunks
         out.finalize()
     return counts

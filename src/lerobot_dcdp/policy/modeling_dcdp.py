@@ -42,8 +42,8 @@ from lerobot_dcdp.policy.base_policy import (
 from lerobot_dcdp.policy.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.policy.observation_check import ObservationCheck
 from lerobot_dcdp.policy.policy_folder import BaseMismatchError, CorrectorFolder
-from lerobot_dcdp.policy.processor_pixel_keypoints import declare_reader_output
-from lerobot_dcdp.runtime.chunk_sources import ChunkSource, make_chunk_source
+from lerobot_dcdp.policy.processor_pixel_keypoints import declare_reader_output, with_reader_stats
+from lerobot_dcdp.runtime.chunk_sources import ChunkSource, RenormalizedSource, make_chunk_source
 from lerobot_dcdp.runtime.execution_modes import make_execution_modes
 from lerobot_dcdp.runtime.kernel_runner import KernelRunner
 from lerobot_dcdp.runtime.planning import AsyncPlanning, SyncPlanning, new_episode
@@ -106,7 +106,7 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
         else:
             self.corrector = ReconstructCorrector(config, state_dims, image_keys, low, high)
         if dataset_stats is not None:
-            self.corrector.set_input_scaling(dataset_stats)
+            self.corrector.set_input_scaling(with_reader_stats(config, dataset_stats))
         self.state_dims = state_dims  # the corrector's vector features and their sizes
         self.completion_gate = build_gate(config, state_dims)  # fitted by dcdp-fit-completion-gate
         self._register_load_state_dict_pre_hook(_legacy_keys)
@@ -128,14 +128,15 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
 
     def use_bid_reference(self, path: str | None) -> None:
         """Give ``execution='bid'`` the weak reference policy in ``path`` (checked against the base:
-        :func:`~lerobot_dcdp.policy.base_policy.load_reference_policy`); None: none from now on."""
-        weak = None
+        :func:`~lerobot_dcdp.policy.base_policy.load_reference_policy`), fed and read in the base's units
+        whatever statistics it was trained on (``RenormalizedSource``); None: none from now on."""
+        weak, source = None, None
         if path:
-            cfg = self.config
-            base_ref = cfg.base_policy_path
-            weak = load_reference_policy(path, self._base, base_ref, cfg.device, cfg.pretrained_path)
+            weak = load_reference_policy(path, self._base, self.config.device)
+            weak = make_chunk_source(weak).base  # refuses a policy that cannot plan chunks
+            source = RenormalizedSource(weak, self.normalizer, BaseNormalizer(load_base_stats(path)))
         object.__setattr__(self, "_weak", weak)  # frozen like the base: not a submodule
-        self.modes["bid"].weak = make_chunk_source(weak) if weak is not None else None
+        self.modes["bid"].weak = source
         self.config.bid_weak_policy_path = path
 
     # ------------------------------------------------------------------ the base

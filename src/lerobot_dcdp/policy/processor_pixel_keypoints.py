@@ -140,3 +140,16 @@ def declare_reader_output(config) -> None:
             **config.input_features,
             step.output_key: PolicyFeature(type=FeatureType.ENV, shape=(step.n_outputs,)),
         }
+
+
+def with_reader_stats(config, stats: dict) -> dict:
+    """``stats`` with the reader's estimate's mean and std (the keypoint statistics it was fitted on) when
+    the dataset has none for it: a dataset of frames without the object's keypoints still standardises what
+    the corrector reads."""
+    step = reader_step(config)
+    if step is None or "mean" in stats.get(step.output_key, {}):
+        return stats
+    cfg = step.net.config
+    if not cfg.shift or not cfg.scale:
+        return stats
+    return {**stats, step.output_key: {"mean": torch.tensor(cfg.shift), "std": torch.tensor(cfg.scale)}}

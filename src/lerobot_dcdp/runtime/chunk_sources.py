@@ -150,6 +150,33 @@ def _kept_actions(cfg, n: int):
         cfg.n_action_steps = kept
 
 
+class RenormalizedSource(ChunkSource):
+    """A second policy's chunk source in the first one's units: each observation, normalised with the first
+    policy's statistics, is mapped to raw units and normalised with the second's before the second reads
+    it, and the second's chunks are mapped back the same way (exact: both mappings are the saved
+    normalisers' own). BID's weak reference policy is fed so when it was trained on other statistics.
+
+    Args:
+        base: The second policy.
+        ours: The normaliser the observations and chunks are in (the first policy's).
+        theirs: The second policy's normaliser.
+    """
+
+    def __init__(self, base: PreTrainedPolicy, ours, theirs) -> None:
+        super().__init__(base)
+        self.ours, self.theirs = ours, theirs
+
+    def observe(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        mapped = {
+            k: self.theirs(k, self.ours(k, v, inverse=True)) if isinstance(v, Tensor) else v
+            for k, v in batch.items()
+        }
+        return super().observe(mapped)
+
+    def chunk(self, prepared: dict[str, Tensor], length: int | None = None) -> Tensor:
+        return self.ours(ACTION, self.theirs(ACTION, super().chunk(prepared, length), inverse=True))
+
+
 def _repeat(x, n: int):
     """Each batch entry of a tensor repeated ``n`` times in a row (B*n, ...); anything else as it is."""
     return x.repeat_interleave(n, dim=0) if isinstance(x, Tensor) else x
