@@ -136,3 +136,40 @@ def test_cli_names_a_missing_feature(tmp_path):
             ]
         )
     assert not (tmp_path / "r").exists()
+
+
+def test_precomputed_estimates_are_what_the_pre_processor_step_writes(tmp_path):
+    """dcdp-precompute-keypoints: the reader's estimate per frame as a column (cameras dropped on request),
+    equal to what the ``dcdp_pixel_keypoints`` step computes from the same frames."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_dcdp.data.precompute_keypoints import main as precompute
+    from lerobot_dcdp.policy.processor_pixel_keypoints import PixelKeypointsProcessorStep
+
+    _write_dataset(tmp_path / "squares", episodes=2, frames=6)
+    reader = tmp_path / "reader"
+    main(
+        ["--repo-id", "local/squares", "--root", str(tmp_path / "squares"), "--out", str(reader)]
+        + ["--steps", "3", "--val-episodes", "0"]
+    )
+    args = ["--reader", str(reader), "--repo-id", "local/squares", "--root", str(tmp_path / "squares")]
+    out = tmp_path / "with_estimate"
+    precompute(
+        args
+        + ["--out-repo-id", "local/sq_est", "--out-root", str(out), "--output-key", "observation.kp"]
+        + ["--drop-cameras"]
+    )
+    copy, source = (
+        LeRobotDataset("local/sq_est", root=out),
+        LeRobotDataset("local/squares", root=tmp_path / "squares"),
+    )
+    assert "observation.image" not in copy.meta.features and copy.num_frames == 12
+    step = PixelKeypointsProcessorStep.from_folder(reader, output_key="observation.kp")
+    for i in (0, 7, 11):
+        expected = step.observation({"observation.image": source[i]["observation.image"]})["observation.kp"]
+        torch.testing.assert_close(copy[i]["observation.kp"], expected, atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(
+            copy[i]["observation.environment_state"], source[i]["observation.environment_state"]
+        )
+    with pytest.raises(SystemExit, match="already holds 'observation.environment_state'"):
+        precompute(args + ["--out-repo-id", "local/x", "--out-root", str(tmp_path / "x")])

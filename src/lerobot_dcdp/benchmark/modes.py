@@ -68,14 +68,15 @@ def set_mode(policy: Any, method: str, delay: int = 0) -> None:
 
 def obs_type(policy: Any) -> str:
     """The PushT observation type that gives ``policy`` (corrector and base) what it reads and no more: the
-    frame when it reads a camera, the block keypoints when it reads them from the env (not from a keypoint
-    reader in its pre-processor), the agent position always."""
+    frame when it reads a camera, the block keypoints when it reads them from the env (the keypoint reader's
+    estimate in its pre-processor comes from the frame), the agent position always."""
     from lerobot.configs.types import FeatureType
 
-    feats = {**(policy.base.config.input_features or {}), **(policy.config.input_features or {})}
-    camera = any(f.type is FeatureType.VISUAL for f in feats.values())
-    read = policy.config.keypoint_reader_path  # the keypoints come from the frame
-    keypoints = any(f.type is FeatureType.ENV for f in feats.values()) and not read
+    cfg = policy.config
+    feats = {**(policy.base.config.input_features or {}), **(cfg.input_features or {})}
+    estimated = (cfg.anchor_feature or "observation.environment_state") if cfg.keypoint_reader_path else None
+    camera = any(f.type is FeatureType.VISUAL for f in feats.values()) or estimated is not None
+    keypoints = any(f.type is FeatureType.ENV and k != estimated for k, f in feats.items())
     if camera:
         return "pixels_environment_state_agent_pos" if keypoints else "pixels_agent_pos"
     return "environment_state_agent_pos"

@@ -1,0 +1,110 @@
+"""``dcdp-precompute-keypoints``: a keypoint reader's estimate at every frame of a dataset, as a new column.
+
+An image corrector reads the object's keypoints that its pre-processor's reader (``dcdp_pixel_keypoints``,
+``--policy.keypoint_reader_path``) estimates from the camera. Training it that way decodes and reads every
+frame of every sample's history at every update. This command runs the reader once per frame instead and
+writes its estimate under ``--output-key`` (the corrector's ``anchor_feature``), the same values the
+pre-processor step computes from the same frames (the reader is deterministic); with ``--drop-cameras`` the
+copy leaves the cameras out, so training loads vectors only (the reader step passes a frame-less batch
+unchanged) while the trained folder still reads the camera at run time. The rest of the dataset is copied by
+LeRobot's ``modify_features``; the new dataset appears only when complete.
+
+    dcdp-precompute-keypoints --reader runs/pusht_pixel_keypoints --repo-id local/pusht_image_kp \\
+        --root data/pusht_image_kp --out-repo-id local/pusht_image_kpest --out-root data/pusht_image_kpest \\
+        --output-key observation.kp_estimate --drop-cameras
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lerobot_dcdp.data.atomic_dataset import staged_dir
+from lerobot_dcdp.model.pixel_keypoints import PixelKeypointNet, load_reader
+
+
+@torch.no_grad()
+def reader_estimates(net: PixelKeypointNet, dataset, image_key: str, batch_size: int = 256) -> np.ndarray:
+    """The reader's keypoints (N, n_outputs) of each of the dataset's N frames (global index order).
+
+    Raises:
+        ValueError: the dataset has no camera ``image_key``.
+    """
+    feats = dataset.meta.features
+    if image_key not in feats or feats[image_key]["dtype"] not in ("image", "video"):
+        cameras = sorted(k for k, f in feats.items() if f["dtype"] in ("image", "video"))
+        raise ValueError(f"the reader reads the camera {image_key!r}; the dataset's cameras are {cameras}")
+    loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=0)
+    out = [net(batch[image_key].float()).numpy() for batch in loader]
+    return np.concatenate(out).astype(np.float32)
+
+
+def precompute_keypoints(
+    reader: str | Path,
+    repo_id: str,
+    root: str | Path,
+    out_repo_id: str,
+    out_root: str | Path,
+    output_key: str | None = None,
+    drop_cameras: bool = False,
+    force: bool = False,
+) -> tuple[Path, str]:
+    """Write a copy of the dataset at ``root`` with the reader's estimate per frame; returns the copy's root
+    and the key the estimate went under (default: the key the reader was fitted to, which must not be in the
+    dataset already)."""
+    from lerobot.datasets.dataset_tools import modify_features
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    out_root = Path(out_root)
+    if out_root.exists() and not force:
+        raise FileExistsError(f"{out_root} exists; pass --force to replace it")
+    net, image_key, target_key = load_reader(reader)
+    key = output_key or target_key
+    dataset = LeRobotDataset(repo_id, root=root)
+    if key in dataset.meta.features:
+        raise ValueError(
+            f"the dataset already holds {key!r}: name another column for the estimate (--output-key)"
+        )
+    estimates = reader_estimates(net, dataset, image_key)
+    info = {"dtype": "float32", "shape": [estimates.shape[1]], "names": None}
+    cameras = [k for k, f in dataset.meta.features.items() if f["dtype"] in ("image", "video")]
+    with staged_dir(out_root) as built:
+        modify_features(
+            dataset,
+            add_features={key: (estimates, info)},
+            remove_features=cameras if drop_cameras else None,
+            output_dir=built,
+            repo_id=out_repo_id,
+        )
+    return out_root, key
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(prog="dcdp-precompute-keypoints", description=__doc__.splitlines()[0])
+    p.add_argument("--reader", required=True, help="the reader's folder (dcdp-fit-pixel-keypoints --out)")
+    p.add_argument("--repo-id", required=True, help="the dataset's repo id")
+    p.add_argument("--root", required=True, help="the dataset's directory")
+    p.add_argument("--out-repo-id", required=True, help="the copy's repo id")
+    p.add_argument("--out-root", required=True, help="where the copy with the estimate goes")
+    p.add_argument(
+        "--output-key", default=None, help="the estimate's column (default: the key the reader was fitted to)"
+    )
+    p.add_argument("--drop-cameras", action="store_true", help="leave the cameras out of the copy")
+    p.add_argument("--force", action="store_true", help="replace --out-root if it exists")
+    a = p.parse_args(argv)
+    torch.set_num_threads(1)
+    try:
+        out, key = precompute_keypoints(
+            a.reader, a.repo_id, a.root, a.out_repo_id, a.out_root, a.output_key, a.drop_cameras, a.force
+        )
+    except (FileExistsError, ValueError) as err:
+        sys.exit(f"dcdp-precompute-keypoints: error: {err}")
+    print(f"wrote {out} ({key}: the reader's estimate per frame)")
+
+
+if __name__ == "__main__":
+    main()
