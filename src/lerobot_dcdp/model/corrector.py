@@ -9,6 +9,7 @@ chunk a still world would get). The two kinds are in ``corrector_residual.py`` (
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from typing import TYPE_CHECKING
 
 import torch
@@ -82,9 +83,10 @@ class Corrector(nn.Module):
         """Inverse of :meth:`to_unit`."""
         return from_unit_range(actions, self.action_low, self.action_high)
 
-    def set_input_scaling(self, stats: dict) -> None:
+    def set_input_scaling(self, stats: dict, raw_keys: Collection[str] | None = None) -> None:
         """Standardise, with the dataset's ``stats``, the vector inputs that the base's normaliser leaves raw
-        (saved with the weights)."""
+        (saved with the weights): ``raw_keys``, default those whose feature type the base's normalisation
+        mapping leaves as they are (a key the base has no statistics for is raw too: pass it here)."""
         cfg, encoder = self.config, self.frame_encoder
         shift, scale, i = encoder.state_shift.clone(), encoder.state_scale.clone(), 0
         for key in encoder.state_keys:
@@ -92,7 +94,9 @@ class Corrector(nn.Module):
             mode = cfg.normalization_mapping.get(
                 cfg.input_features[key].type.value, NormalizationMode.IDENTITY
             )
-            if NormalizationMode(mode) is NormalizationMode.IDENTITY and "mean" in stats.get(key, {}):
+            identity = NormalizationMode(mode) is NormalizationMode.IDENTITY
+            raw = identity if raw_keys is None else key in raw_keys
+            if raw and "mean" in stats.get(key, {}):
                 shift[i : i + dim] = torch.as_tensor(stats[key]["mean"], dtype=torch.float32).reshape(-1)
                 scale[i : i + dim] = (
                     torch.as_tensor(stats[key]["std"], dtype=torch.float32).reshape(-1).clamp_min(1e-6)

@@ -106,7 +106,10 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
         else:
             self.corrector = ReconstructCorrector(config, state_dims, image_keys, low, high)
         if dataset_stats is not None:
-            self.corrector.set_input_scaling(with_reader_stats(config, dataset_stats))
+            raw = [  # what the base's normaliser leaves raw: the corrector standardises it itself
+                k for k in state_dims if self.normalizer.stats.get(k, ("IDENTITY",))[0] == "IDENTITY"
+            ]
+            self.corrector.set_input_scaling(with_reader_stats(config, dataset_stats), raw)
         self.state_dims = state_dims  # the corrector's vector features and their sizes
         self.completion_gate = build_gate(config, state_dims)  # fitted by dcdp-fit-completion-gate
         self._register_load_state_dict_pre_hook(_legacy_keys)

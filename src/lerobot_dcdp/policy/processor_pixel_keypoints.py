@@ -128,18 +128,23 @@ def reader_step(config) -> PixelKeypointsProcessorStep | None:
 
 
 def declare_reader_output(config) -> None:
-    """Add the reader's estimate to ``config.input_features`` when it is not there (a dataset without the
-    object's keypoints: the policy reads them from the pre-processor, not the dataset)."""
+    """Add the reader's estimate and its camera to ``config.input_features`` where they are not there: a
+    dataset without the object's keypoints (the policy reads them from the pre-processor), or one holding the
+    precomputed estimate without the camera (``dcdp-precompute-keypoints --drop-cameras``: at run time the
+    reader reads the camera)."""
     if not config.keypoint_reader_path or config.input_features is None:
         return
-    if config.anchor_feature and config.anchor_feature in config.input_features:
-        return
+    feats = config.input_features
+    key = config.anchor_feature
+    has_output = key in feats if key else any(f.type is FeatureType.ENV for f in feats.values())
+    if has_output and any(f.type is FeatureType.VISUAL for f in feats.values()):
+        return  # e.g. a trained folder: nothing to read from the reader's folder
     step = reader_step(config)
-    if step.output_key not in config.input_features:
-        config.input_features = {
-            **config.input_features,
-            step.output_key: PolicyFeature(type=FeatureType.ENV, shape=(step.n_outputs,)),
-        }
+    declared = {
+        step.output_key: PolicyFeature(type=FeatureType.ENV, shape=(step.n_outputs,)),
+        step.image_key: PolicyFeature(type=FeatureType.VISUAL, shape=tuple(step.net.config.image_shape)),
+    }
+    config.input_features = {**feats, **{k: v for k, v in declared.items() if k not in feats}}
 
 
 def with_reader_stats(config, stats: dict) -> dict:
