@@ -73,7 +73,9 @@ def obs_type(policy: Any) -> str:
     from lerobot.configs.types import FeatureType
 
     cfg = policy.config
-    feats = {**(policy.base.config.input_features or {}), **(cfg.input_features or {})}
+    declared = cfg.input_features or {}
+    read = [*cfg.corrector_features, *([cfg.anchor_feature] if cfg.anchor_feature else [])]
+    feats = {**(policy.base.config.input_features or {}), **{k: declared[k] for k in read if k in declared}}
     estimated = (cfg.anchor_feature or "observation.environment_state") if cfg.keypoint_reader_path else None
     camera = any(f.type is FeatureType.VISUAL for f in feats.values()) or estimated is not None
     keypoints = any(f.type is FeatureType.ENV and k != estimated for k, f in feats.items())

@@ -360,7 +360,8 @@ def main(argv: list[str] | None = None) -> None:
         "--image-storage",
         choices=IMAGE_STORAGES,
         default="video",
-        help="how --images frames are stored: mp4 video (small) or PNG frames (faster to load for training)",
+        help="how --images frames are stored: mp4 video (default: small, and faster to load on an idle box; "
+        "docs/FINDINGS.md) or PNG frames",
     )
     p.add_argument(
         "--no-keypoints",
