@@ -70,6 +70,12 @@ def build_parser(presets: dict[str, dict]) -> argparse.ArgumentParser:
     p.add_argument("--latency-steps", type=int, default=None, help="batch-1 steps timed per method (0: skip)")
     p.add_argument("--latency-rounds", type=int, default=10, help="episodes per method, interleaved")
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    p.add_argument(
+        "--device",
+        default=None,
+        help="where the policies run (default: each folder's, CPU for the shipped ones; e.g. cuda: BID "
+        "samples 30 chunks per step)",
+    )
     p.add_argument("--videos", type=int, default=None, help="side-by-side open_loop|dcdp videos to render")
     p.add_argument("--out", default=None, help="results file (main: results/benchmark.json)")
     p.add_argument(

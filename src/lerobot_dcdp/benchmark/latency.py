@@ -153,17 +153,21 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--steps", type=int, default=300, help="control steps per episode")
     p.add_argument("--batches", type=int, nargs="+", default=[1, 50], help="batch sizes (envs) to time")
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    p.add_argument("--device", default=None, help="where the policy runs (default: the folder's)")
+    p.add_argument("--bid-weak", default=None, help="BID's weak reference policy folder (with --modes bid)")
     p.add_argument("--out", default="results/latency.json", help="JSON file the timings are written to")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
     from lerobot_dcdp.benchmark.identity import git_commit, machine
     from lerobot_dcdp.benchmark.modes import load_model
 
-    policy, pre, post, ident = load_model(a.corrector)
+    policy, pre, post, ident = load_model(a.corrector, a.device)
+    policy.use_bid_reference(a.bid_weak)
     modes = [m for m in a.modes if m != "object_anchored" or policy.config.anchor_feature]
     res = {
         "command": "dcdp-latency " + " ".join(argv if argv is not None else sys.argv[1:]),
         "identity": ident,
+        "bid_weak_policy": a.bid_weak,
         "machine": machine(),
         "git_commit": git_commit(),
         "per_step": {},

@@ -9,11 +9,12 @@ from lerobot_dcdp.benchmark.identity import lead_identity
 from lerobot_dcdp.model.correction import state_dict_sha256
 
 
-def load_model(corrector_dir: str) -> tuple[Any, Any, Any, dict]:
+def load_model(corrector_dir: str, device: str | None = None) -> tuple[Any, Any, Any, dict]:
     """The corrector (with its base) and the processors saved beside it.
 
     Args:
         corrector_dir: The corrector folder.
+        device: Where the policy runs (default: the folder's; e.g. ``cuda`` for BID's sampling).
 
     Returns:
         ``(policy, preprocessor, postprocessor, identity)``; the identity (paths, hashes, parameter count,
@@ -22,7 +23,7 @@ def load_model(corrector_dir: str) -> tuple[Any, Any, Any, dict]:
     import lerobot_policy_dcdp  # noqa: F401
     from lerobot_dcdp.policy.loader import load_dcdp
 
-    policy, pre, post = load_dcdp(corrector_dir)
+    policy, pre, post = load_dcdp(corrector_dir, device=device)
     identity = {
         "corrector": corrector_dir,
         "corrector_sha256": policy.corrector_sha256(),

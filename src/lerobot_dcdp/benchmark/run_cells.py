@@ -55,7 +55,7 @@ def run_model(
     """
     from tqdm import tqdm
 
-    policy, pre, post, ident = load_model(path)
+    policy, pre, post, ident = load_model(path, getattr(a, "device", None))
     model = LoadedModel(label, policy, pre, post, ident)
     store.results.setdefault("models", {})[label] = ident
     methods = [m for m in model_methods(a, label) if runs(m, policy)]
