@@ -49,7 +49,8 @@ def test_protocol_presets_and_explicit_flags() -> None:
     assert main_args.out == "results/benchmark.json" and "expert" not in main_args.methods
     mild = parse_args(["--protocol", "mild"])
     assert mild.episodes == 100 and mild.expert_episodes == 100 and mild.conditions == MILD_CONDITIONS
-    assert mild.methods == ["open_loop", "object_anchored", "gated_anchored", "dcdp", "bid", "expert"]
+    assert mild.methods == ["open_loop", "object_anchored", "gated_anchored", "dcdp", "expert"]
+    assert "bid" not in main_args.methods  # on request only: 30 sampled chunks per step
     assert (mild.out, mild.report) == ("results/benchmark_mild.json", "docs/RESULTS_MILD.md")
     assert mild.latency_steps == 0 and mild.videos == 0
     # the mild protocol's first correctors carry the base's rows, the gated ones only their DCDP row
