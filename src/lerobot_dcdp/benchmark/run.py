@@ -5,10 +5,10 @@ demonstrations-only correctors) the base it records is run as ``open_loop`` (H =
 ``temporal_ensemble`` (H = 1, 0.5), ``object_anchored`` (H = 8, when the corrector names an anchor feature),
 ``gated_anchored`` (``object_anchored`` with the folder's completion gate, when it has one) and ``dcdp``
 (H = 8) on static PushT and under constant / random block drift of 0.5 to 2.5 px per step;
-``--delays 0 2 4`` adds a base that answers d control steps late (``inference_delay``); ``--methods bid`` runs
-Bidirectional Decoding over the base (with ``--bid-weak``, default the shipped weak checkpoint for the diffusion
-models; ~1 h of one CPU core per 10 episodes, ``--device cuda`` where there is one); ``--protocol image`` the
-image base and its corrector from pixels.
+``--delays 0 2 4`` adds a base that answers d control steps late (``inference_delay``); ``--methods bid``
+runs Bidirectional Decoding over the base (with ``--bid-weak``, default the shipped weak checkpoint for the
+diffusion models; ~1 h of one CPU core per 10 episodes, ``--device cuda`` where there is one);
+``--protocol image`` the image base and its corrector from pixels.
 Seeds 100000.., 300 steps max, an episode ends on success (coverage > 0.95). Writes ``results/benchmark.json``
 (finished cells are kept and not recomputed), the per-step latency at batch 1, a plot, side-by-side videos
 and ``docs/RESULTS.md``.
