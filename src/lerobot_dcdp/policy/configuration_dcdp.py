@@ -17,12 +17,6 @@ from lerobot_dcdp.policy.config_checks import (  # the choice tuples stay import
 )
 from lerobot_dcdp.policy.config_options import (
     OPTION_GROUPS,
-    BidOptions,
-    CorrectionOptions,
-    ExecutionOptions,
-    NetworkOptions,
-    PlanningOptions,
-    SynthesisOptions,
 )
 
 __all__ = ["CORRECTIONS", "EXECUTION_MODES", "DCDPConfig"]
@@ -30,15 +24,7 @@ __all__ = ["CORRECTIONS", "EXECUTION_MODES", "DCDPConfig"]
 
 @PreTrainedConfig.register_subclass("dcdp")
 @dataclass
-class DCDPConfig(
-    PreTrainedConfig,
-    ExecutionOptions,
-    PlanningOptions,
-    CorrectionOptions,
-    SynthesisOptions,
-    NetworkOptions,
-    BidOptions,
-):
+class DCDPConfig(PreTrainedConfig, *OPTION_GROUPS):
     """Configuration of a DCDP corrector wrapped around a frozen chunking base policy.
 
     The base policy (Diffusion Policy, ACT, VQ-BeT, ...) plans a chunk every ``n_action_steps`` control steps;
