@@ -165,3 +165,32 @@ def test_an_ablation_run_never_overwrites_the_main_plots() -> None:
         "ablation_score_vs_drift.png",
         "ablation_score_vs_delay.png",
     ]
+
+
+def test_the_image_protocol_reports_its_own_goals(tmp_path) -> None:
+    """Cells whose DCDP read pixels only get issue 49's table (the privileged rule found by its base), in
+    place of the main protocol's gaps."""
+    r = results()
+    for c in r["cells"].values():
+        c["obs_type"] = "pixels_agent_pos"
+        c["successes"] = [c["success_rate"]] * 2
+    r["cells"]["m|open_loop|static"]["successes"] = [1.0, 0.0]
+    priv = {**cell("gated_anchored", "constant_2.0", 1.0, 0.9), "model": "p"}
+    priv["obs_type"] = "pixels_environment_state_agent_pos"
+    r["cells"]["p|gated_anchored|constant_2.0"] = priv
+    r["models"]["p"] = IDENT
+    write_report(r, tmp_path / "RESULTS.md", tmp_path / "benchmark.json")
+    text = (tmp_path / "RESULTS.md").read_text()
+    assert "## Issue 49 goals" in text and "(goal >= +0.20)" not in text
+    assert "| image base at rest: success >= 50% | 50% | met (+0.00) |" in text
+    assert "| image base at rest: score >= 0.90 | 0.900 | met (+0.000) |" in text
+    # paired over the seeds: [0.8, 0.8] - [0.4, 0.6] = +0.300 ± 0.100
+    assert "| constant_2.0: DCDP - open loop >= +0.15 score | +0.300 ± 0.100 | met (+0.150) |" in text
+    assert "| random_2.0: DCDP - open loop >= +0.15 score | - | - |" in text
+    assert (
+        "| moonshot, constant_2.0: DCDP - privileged gated anchoring >= -0.05 score | -0.100 ± 0.000 | "
+        "**missed** (-0.050) |" in text
+    )
+    # state cells (no obs_type) keep the main protocol's gaps
+    write_report(results(), tmp_path / "STATE.md", tmp_path / "state.json")
+    assert "Issue 49" not in (tmp_path / "STATE.md").read_text()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 from helpers import make_dcdp_config, make_dcdp_policy
 
@@ -138,3 +140,33 @@ def test_changed_base_weights_are_refused(diffusion_base, demo_root) -> None:
 
     with pytest.raises(BaseMismatchError, match="base_weights_sha256 mismatch"):
         DCDPPolicy(cfg)
+
+
+def test_a_column_nothing_reads_is_not_asked_of_the_env(diffusion_base, demo_root) -> None:
+    """A dataset column outside the base's, the corrector's and the anchoring's inputs (e.g. recorded
+    keypoints that a keypoint reader's estimate stands in for) leaves the policy's features, its split and
+    its check."""
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
+    from lerobot_dcdp.policy.processor_dcdp import make_dcdp_pre_post_processors
+
+    extra = {
+        "observation.kp_recorded": PolicyFeature(type=FeatureType.ENV, shape=(16,)),
+        "observation.dcdp_plan_step": PolicyFeature(type=FeatureType.STATE, shape=(1,)),
+    }
+    observed = ["observation.state", "observation.environment_state"]
+    cfg = make_dcdp_config(diffusion_base, demo_root, observation_features=observed)
+    cfg.input_features = {**cfg.input_features, **extra}
+    DCDPPolicy(cfg)
+    assert sorted(cfg.input_features) == sorted(observed)
+    pre, _ = make_dcdp_pre_post_processors(cfg)
+    names = [type(s).__name__ for s in pre.steps]
+    assert "SplitStateProcessorStep" in names and "CheckObservationProcessorStep" in names
+    assert "observation.kp_recorded" not in json.dumps([s.get_config() for s in pre.steps], default=str)
+    # with every observation read (no observation_features), the extra column is a corrector input
+    cfg = make_dcdp_config(diffusion_base, demo_root)
+    cfg.input_features = {**cfg.input_features, **extra}
+    DCDPPolicy(cfg)
+    assert "observation.kp_recorded" in cfg.input_features
+    assert "observation.dcdp_plan_step" not in cfg.input_features

@@ -22,6 +22,7 @@ from lerobot_dcdp.benchmark.cells import (
     expert_name,
     magnitude,
 )
+from lerobot_dcdp.benchmark.image_goals import image_goals
 from lerobot_dcdp.benchmark.plots import COLORS, EXPERT_COLOR, plot, plot_delay, plot_paths, success_plot_path
 from lerobot_dcdp.benchmark.stats import paired_diff, score_se, success_se
 from lerobot_dcdp.benchmark.tables import (
@@ -222,9 +223,10 @@ def _ceiling_section(results: dict) -> list[str]:
     ]
 
 
-def _model_section(results: dict, label: str, ident: dict) -> list[str]:
-    """One model's section: what it is, Tables 1 and 2, the gaps to the goals, the mild protocol's goals for
-    each judged row it has, and Table 3 when it ran delayed cells."""
+def _model_section(results: dict, label: str, ident: dict, gaps_too: bool = True) -> list[str]:
+    """One model's section: what it is, Tables 1 and 2, the gaps to the main protocol's goals (unless
+    ``gaps_too`` is false), the mild protocol's goals for each judged row it has, and Table 3 when it ran
+    delayed cells."""
     cells = [c for c in results["cells"].values() if c["model"] == label]
     n = cells[0]["episodes"] if cells else "?"
     parts = [
@@ -242,11 +244,9 @@ def _model_section(results: dict, label: str, ident: dict) -> list[str]:
         "",
         table2(results, label),
         "",
-        "### Gaps to the goals",
-        "",
-        gaps(results, label) or "(not enough cells)",
-        "",
     ]
+    if gaps_too:
+        parts += ["### Gaps to the goals", "", gaps(results, label) or "(not enough cells)", ""]
     for method, name in JUDGED_ROWS.items():
         mild = mild_goals(results, label, method)
         if mild:
@@ -300,8 +300,11 @@ def write_report(results: dict, report: Path, json_path: Path, realtime_dir: Pat
     plot(results, success_path, metric="success")
     has_delay = plot_delay(results, delay_path)
     parts = _header(results, json_path, plot_path, success_path) + _ceiling_section(results)
+    pixels = image_goals(results)  # the image protocol's goals replace the main protocol's gaps
+    if pixels:
+        parts += ["## Issue 49 goals: corrections from pixels", "", pixels, ""]
     for label, ident in results.get("models", {}).items():
-        parts += _model_section(results, label, ident)
+        parts += _model_section(results, label, ident, gaps_too=not pixels)
     parts += _figures(plot_path, success_path, delay_path if has_delay else None)
     if realtime_dir is not None:  # last: not this benchmark's rollouts
         parts += realtime_section(realtime_dir)

@@ -157,6 +157,18 @@ class DCDPConfig(PreTrainedConfig, *OPTION_GROUPS):
             and (cameras_too or ft.type is not FeatureType.VISUAL)
         ]
 
+    def used_inputs(self, base_features: dict) -> dict:
+        """``input_features`` less what nothing reads: the keys the base, the corrector
+        (:attr:`corrector_features`) and the anchoring (``anchor_feature``) read. A dataset's other columns
+        (the recorded plan's context; keypoints that a keypoint reader's estimate stands in for) are then
+        neither checked nor asked of the env or robot at run time.
+
+        Args:
+            base_features: The base's input features (``{key: PolicyFeature}``).
+        """
+        used = {*base_features, *self.corrector_features, self.anchor_feature} - set(self.plan_columns)
+        return {k: v for k, v in (self.input_features or {}).items() if k in used}
+
     @property
     def resolved_backbone(self) -> str:
         if self.backbone != "auto":

@@ -72,10 +72,8 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
         object.__setattr__(self, "_base", base)  # not a submodule: out of state_dict/parameters/train()
         self._adopt_base(base)
         self._source: ChunkSource = make_chunk_source(base)
-        if config.input_features:  # the recorded plan is a training target's context, never an input
-            config.input_features = {
-                k: v for k, v in config.input_features.items() if k not in config.plan_columns
-            }
+        if config.input_features:  # only what the base, the corrector and the anchoring read is asked for
+            config.input_features = config.used_inputs(base.config.input_features or {})
         declare_reader_output(config)
         check_against_base(config, base, self.source.chunk_length, self.source.max_length)
         config.validate_features()
