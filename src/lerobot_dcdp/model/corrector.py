@@ -43,6 +43,7 @@ class Corrector(nn.Module):
         image_keys: list[str],
         action_low: Tensor,
         action_high: Tensor,
+        image_encoder: tuple[nn.Module, int] | None = None,
     ) -> None:
         super().__init__()
         self.config = config
@@ -53,6 +54,7 @@ class Corrector(nn.Module):
             config.state_hidden_dim,
             config.image_backbone_weights,
             config.freeze_image_backbone,
+            image_encoder,
         )
         self.extractor = DynamicFeatureExtractor(
             config.n_history,

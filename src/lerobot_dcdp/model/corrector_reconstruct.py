@@ -22,8 +22,8 @@ from lerobot_dcdp.model.episode_state import EpisodeState
 class ReconstructCorrector(Corrector):
     """``correction='reconstruct'``: the chunk encoder E plus a recurrent action decoder D (module doc)."""
 
-    def __init__(self, config, state_dims, image_keys, action_low, action_high) -> None:
-        super().__init__(config, state_dims, image_keys, action_low, action_high)
+    def __init__(self, config, state_dims, image_keys, action_low, action_high, image_encoder=None) -> None:
+        super().__init__(config, state_dims, image_keys, action_low, action_high, image_encoder)
         self.decoder = ActionDecoder(
             config.n_action_steps,
             action_low.shape[0],

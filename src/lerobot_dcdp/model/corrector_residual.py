@@ -10,7 +10,7 @@ Stage 2: ``begin_chunk`` encodes the chunk once (and sums the head's per-chunk i
 from __future__ import annotations
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 from lerobot_dcdp.model.action_vae import kl_to_standard_normal, reparameterize
 from lerobot_dcdp.model.anchoring import ObjectAnchor
@@ -40,8 +40,9 @@ class ResidualCorrector(Corrector):
         action_high: Tensor,
         normalizer: BaseNormalizer,
         anchor: ObjectAnchor | None = None,
+        image_encoder: tuple[nn.Module, int] | None = None,
     ) -> None:
-        super().__init__(config, state_dims, image_keys, action_low, action_high)
+        super().__init__(config, state_dims, image_keys, action_low, action_high, image_encoder)
         action_dim = action_low.shape[0]
         change_dim = 2 * (sum(state_dims.values()) if state_dims else config.feature_dim)
         change_dim += action_dim if config.anchor_input else 0

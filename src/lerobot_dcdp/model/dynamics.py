@@ -66,11 +66,27 @@ class ImageBackbone(nn.Module):
         return self.head(self.trunk(img)).mean(dim=(-2, -1))
 
 
+class BaseEncoderBackbone(nn.Module):
+    """The frozen base's own image encoder (kept out of this module's parameters and ``state_dict``: the base
+    folder holds it) -> a trainable linear map to d."""
+
+    def __init__(self, encoder: nn.Module, feature_dim: int, out_dim: int) -> None:
+        super().__init__()
+        object.__setattr__(self, "_encoder", encoder)  # not a submodule: never trained, saved or moved here
+        self.proj = nn.Linear(feature_dim, out_dim)
+
+    def forward(self, img: Tensor) -> Tensor:
+        with torch.no_grad():
+            feat = self._encoder(img)
+        return self.proj(feat)
+
+
 class FrameEncoder(nn.Module):
     """Per-frame backbone over every observation key -> one token of size d per frame.
 
     Vectors (state, environment state) are concatenated and go through :class:`StateBackbone`; each camera
-    goes through a shared :class:`ImageBackbone`; the parts are summed after a linear projection each.
+    goes through a shared :class:`ImageBackbone` (or, given ``image_encoder``, the base's frozen encoder:
+    :class:`BaseEncoderBackbone`); the parts are summed after a linear projection each.
     """
 
     def __init__(
@@ -81,6 +97,7 @@ class FrameEncoder(nn.Module):
         hidden_dim: int,
         image_weights: str | None = None,
         freeze_images: bool = True,
+        image_encoder: tuple[nn.Module, int] | None = None,
     ) -> None:
         super().__init__()
         self.state_keys = list(state_dims)
@@ -90,7 +107,12 @@ class FrameEncoder(nn.Module):
         # Fixed affine scaling of the vector inputs the base's normaliser leaves raw (saved with the weights).
         self.register_buffer("state_shift", torch.zeros(n_state))
         self.register_buffer("state_scale", torch.ones(n_state))
-        self.image = ImageBackbone(out_dim, image_weights, freeze_images) if image_keys else None
+        if not image_keys:
+            self.image = None
+        elif image_encoder is not None:
+            self.image = BaseEncoderBackbone(*image_encoder, out_dim)
+        else:
+            self.image = ImageBackbone(out_dim, image_weights, freeze_images)
         self.cam_embed = nn.Parameter(torch.zeros(len(image_keys), out_dim)) if image_keys else None
 
     def vector(self, obs: dict[str, Tensor]) -> Tensor | None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import torch
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.pretrained import PreTrainedPolicy
 
@@ -103,7 +104,6 @@ def load_base_stats(ref: str, relative_to: str | Path | None = None) -> dict[str
     """
     import logging
 
-    import torch
     from lerobot.processor import PolicyProcessorPipeline
 
     path = Path(resolve_base_reference(ref, relative_to))
@@ -197,3 +197,34 @@ def load_reference_policy(ref: str, base: PreTrainedPolicy, device: str | None) 
     if missing:
         raise ValueError(f"bid_weak_policy_path={ref!r} reads {missing}, which the base does not")
     return weak
+
+
+def base_image_encoder(base: PreTrainedPolicy, config) -> tuple[torch.nn.Module, int]:
+    """The base's own frozen image encoder and its output width, for ``backbone='base_encoder'``: the
+    ``rgb_encoder`` of LeRobot's diffusion and VQ-BeT policies (it crops as the base does), the only one of a
+    base with one camera and separate encoders per camera.
+
+    Raises:
+        ValueError: for a base without such an encoder, several per-camera encoders, or a base whose weights
+            are not loaded here (``base_location='remote'``).
+    """
+    if config.base_location != "local":
+        raise ValueError(
+            "backbone='base_encoder' reads the base's trained image encoder, which a remote base "
+            "(base_location='remote') does not load here: use backbone='resnet18' or base_location='local'"
+        )
+    inner = getattr(base, {"diffusion": "diffusion", "vqbet": "vqbet"}.get(base.config.type, ""), None)
+    encoder = getattr(inner, "rgb_encoder", None)
+    if encoder is None:
+        raise ValueError(
+            f"backbone='base_encoder' needs a base with one image encoder (LeRobot diffusion or vqbet "
+            f"reading a camera); base type {base.config.type!r} has none: use backbone='resnet18'"
+        )
+    if isinstance(encoder, torch.nn.ModuleList):  # use_separate_rgb_encoder_per_camera
+        if len(encoder) != 1:
+            raise ValueError(
+                f"backbone='base_encoder': the base has one image encoder per camera ({len(encoder)}), the "
+                "corrector one for all: use backbone='resnet18'"
+            )
+        encoder = encoder[0]
+    return encoder, int(encoder.feature_dim)

@@ -15,7 +15,7 @@ from lerobot_dcdp.model.completion_gate import GATED_MODES  # noqa: F401  (re-ex
 
 EXECUTION_MODES = ("dcdp", "open_loop", "closed_loop", "temporal_ensemble", "object_anchored", "bid")
 CORRECTIONS = ("reconstruct", "residual")
-BACKBONES = ("auto", "mlp", "resnet18")
+BACKBONES = ("auto", "mlp", "resnet18", "base_encoder")
 KERNEL_CHOICES = ("auto", "on", "off")
 PLANNING_MODES = ("sync", "async")
 PLANNING_CLOCKS = ("wall", "steps")

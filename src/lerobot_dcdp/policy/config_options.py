@@ -252,8 +252,10 @@ class NetworkOptions:
     """The corrector's networks (paper Sec. 3) and the weights of its stage-1 loss terms.
 
     Args:
-        backbone: Per-frame backbone: ``mlp`` for state/keypoint vectors, ``resnet18`` for images, ``auto``
-            picks ``resnet18`` when the inputs hold images, else ``mlp``.
+        backbone: Per-frame backbone: ``mlp`` for state/keypoint vectors, ``resnet18`` for images,
+            ``base_encoder`` for images read by the frozen base's own trained image encoder (LeRobot diffusion
+            or VQ-BeT; only a linear map on it is trained, nothing of it is saved with the corrector),
+            ``auto`` picks ``resnet18`` when the inputs hold images, else ``mlp``.
         observation_features: Observation keys the corrector reads; empty = every observation input of the
             dataset or env (the recorded plan keys excepted).
         feature_dim: Width of the per-frame tokens and of the dynamic feature F.

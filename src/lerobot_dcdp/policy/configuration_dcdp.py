@@ -208,10 +208,10 @@ class DCDPConfig(PreTrainedConfig, *OPTION_GROUPS):
                 )
             if self.action_feature.shape[0] < 2:
                 raise ValueError("anchor_feature needs actions whose first two dims are xy")
-        if self.resolved_backbone == "resnet18" and not any(
+        if self.resolved_backbone in ("resnet18", "base_encoder") and not any(
             feats[k].type is FeatureType.VISUAL for k in self.corrector_features
         ):
-            raise ValueError("backbone='resnet18' needs an image observation feature")
+            raise ValueError(f"backbone={self.resolved_backbone!r} needs an image observation feature")
 
 
 # ``lerobot-train --help`` prints this class's docstring: each option group's follows it, so every option is

@@ -34,6 +34,7 @@ from lerobot_dcdp.model.corrector_residual import ResidualCorrector
 from lerobot_dcdp.model.episode_state import EpisodeState
 from lerobot_dcdp.model.scene_lead import SceneLead, check_lead_features, lead_applies
 from lerobot_dcdp.policy.base_policy import (
+    base_image_encoder,
     check_against_base,
     load_base_policy,
     load_base_stats,
@@ -91,6 +92,7 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
         self.normalizer = BaseNormalizer(load_base_stats(config.base_policy_path, config.pretrained_path))
         low, high = self.normalizer.action_range(ACTION, config.action_feature.shape[0])
         self.anchor = anchor = ObjectAnchor(config, self.normalizer)
+        encoder = base_image_encoder(base, config) if config.resolved_backbone == "base_encoder" else None
         if config.correction == "residual":
             self.corrector: Corrector = ResidualCorrector(
                 config,
@@ -100,9 +102,10 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
                 high,
                 self.normalizer,
                 anchor if config.anchor_input else None,
+                encoder,
             )
         else:
-            self.corrector = ReconstructCorrector(config, state_dims, image_keys, low, high)
+            self.corrector = ReconstructCorrector(config, state_dims, image_keys, low, high, encoder)
         if dataset_stats is not None:
             raw = [  # what the base's normaliser leaves raw: the corrector standardises it itself
                 k for k in state_dims if self.normalizer.stats.get(k, ("IDENTITY",))[0] == "IDENTITY"

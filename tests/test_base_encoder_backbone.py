@@ -1,0 +1,63 @@
+"""``backbone='base_encoder'``: the corrector reads cameras through the frozen base's own image encoder."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from helpers import make_tiny_base, policy_features, training_batches
+
+from lerobot_dcdp.model.dynamics import BaseEncoderBackbone
+from lerobot_dcdp.policy.configuration_dcdp import DCDPConfig
+from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
+
+
+def _config(base, root, **overrides) -> DCDPConfig:
+    inp, out, _ = policy_features(root)
+    params = dict(
+        feature_dim=16,
+        n_heads=2,
+        encoder_hidden_dim=16,
+        decoder_hidden_dim=16,
+        correction="reconstruct",
+        backbone="base_encoder",
+        observation_features=["observation.image"],
+    )
+    params.update(overrides)
+    return DCDPConfig(
+        base_policy_path=str(base), input_features=inp, output_features=out, device="cpu", **params
+    )
+
+
+def test_the_corrector_reads_frames_through_the_bases_frozen_encoder(image_demo_root, tmp_path) -> None:
+    base = make_tiny_base("diffusion", tmp_path / "base", image_demo_root, images=True, crop_shape=(84, 84))
+    _, _, stats = policy_features(image_demo_root)
+    torch.manual_seed(0)
+    policy = DCDPPolicy(_config(base, image_demo_root), dataset_stats=stats)
+    backbone = policy.corrector.frame_encoder.image
+    assert isinstance(backbone, BaseEncoderBackbone)
+    assert backbone._encoder is policy.base.diffusion.rgb_encoder[0]  # one camera, separate encoders
+    # only the linear map on the encoder's 64 features is the corrector's: nothing of the encoder is saved
+    assert tuple(backbone.proj.weight.shape) == (16, 64)
+    encoder_size = sum(p.numel() for p in backbone._encoder.parameters())
+    assert sum(v.numel() for v in policy.state_dict().values()) < encoder_size
+    assert not any("image._encoder" in k or "rgb_encoder" in k for k in policy.state_dict())
+    frozen = {k: v.clone() for k, v in policy.base.diffusion.rgb_encoder.state_dict().items()}
+    batch = next(training_batches(policy, image_demo_root, batch_size=4))
+    policy.train()
+    loss, _ = policy.forward(batch)
+    loss.backward()
+    assert backbone.proj.weight.grad is not None and backbone.proj.weight.grad.abs().sum() > 0
+    assert all(p.grad is None for p in policy.base.diffusion.rgb_encoder.parameters())
+    after = policy.base.diffusion.rgb_encoder.state_dict()
+    assert all(torch.equal(frozen[k], after[k]) for k in frozen)
+    # the tokens follow the frame
+    img = batch["observation.image"][:, 0]
+    assert not torch.allclose(backbone(img), backbone(img.flip(-1)))
+
+
+def test_a_base_without_one_image_encoder_is_refused_by_name(image_demo_root, tmp_path) -> None:
+    base = make_tiny_base("act", tmp_path / "act", image_demo_root, images=True)
+    with pytest.raises(ValueError, match="base type 'act' has none"):
+        DCDPPolicy(_config(base, image_demo_root))
+    with pytest.raises(ValueError, match="backbone='base_encoder' needs an image observation feature"):
+        _config(base, image_demo_root, observation_features=["observation.state"]).validate_features()
