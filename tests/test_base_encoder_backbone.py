@@ -61,3 +61,45 @@ def test_a_base_without_one_image_encoder_is_refused_by_name(image_demo_root, tm
         DCDPPolicy(_config(base, image_demo_root))
     with pytest.raises(ValueError, match="backbone='base_encoder' needs an image observation feature"):
         _config(base, image_demo_root, observation_features=["observation.state"]).validate_features()
+
+
+def test_features_encoded_beforehand_stand_in_for_the_frames(image_demo_root, tmp_path) -> None:
+    """dcdp-precompute-base-features writes the base encoder's features of each frame (as normalised by the
+    base's pre-processor); a training batch holding them gives the tokens and the loss the frames give."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_dcdp.data.precompute_base_features import main as precompute
+
+    base = make_tiny_base("diffusion", tmp_path / "base", image_demo_root, images=True, crop_shape=(84, 84))
+    out = tmp_path / "enc"
+    precompute(
+        ["--base", str(base), "--repo-id", "local/img", "--root", str(image_demo_root)]
+        + ["--out-repo-id", "local/img_enc", "--out-root", str(out)]
+    )
+    ds = LeRobotDataset("local/img_enc", root=out)
+    assert list(ds.meta.features["observation.image.base_encoded"]["shape"]) == [64]
+    assert "observation.image" in ds.meta.features  # the frames stay: the corrector reads them at run time
+    with pytest.raises(SystemExit, match="exists"):
+        precompute(
+            ["--base", str(base), "--repo-id", "local/img", "--root", str(image_demo_root)]
+            + ["--out-repo-id", "local/img_enc", "--out-root", str(out)]
+        )
+    _, _, stats = policy_features(out)
+    torch.manual_seed(0)
+    policy = DCDPPolicy(_config(base, out), dataset_stats=stats)
+    assert "observation.image.base_encoded" not in policy.config.input_features  # never asked of an env
+    batch = next(training_batches(policy, out, batch_size=4))
+    frames = {k: v for k, v in batch.items() if k != "observation.image.base_encoded"}
+    enc = policy.corrector.frame_encoder
+    assert torch.allclose(
+        enc(policy.corrector.frames(batch)), enc(policy.corrector.frames(frames)), atol=1e-4
+    )
+    losses = []
+    for b in (batch, frames):
+        torch.manual_seed(1)
+        losses.append(policy.forward(b)[0])
+    assert torch.allclose(losses[0], losses[1], atol=1e-5)
+    # without the frames, the column alone trains the corrector
+    torch.manual_seed(1)
+    cached = {k: v for k, v in batch.items() if k != "observation.image"}
+    assert torch.allclose(policy.forward(cached)[0], losses[1], atol=1e-5)

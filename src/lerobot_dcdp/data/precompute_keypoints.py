@@ -20,27 +20,10 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from lerobot_dcdp.data.atomic_dataset import staged_dir
-from lerobot_dcdp.model.pixel_keypoints import PixelKeypointNet, load_reader
-
-
-@torch.no_grad()
-def reader_estimates(net: PixelKeypointNet, dataset, image_key: str, batch_size: int = 256) -> np.ndarray:
-    """The reader's keypoints (N, n_outputs) of each of the dataset's N frames (global index order).
-
-    Raises:
-        ValueError: the dataset has no camera ``image_key``.
-    """
-    feats = dataset.meta.features
-    if image_key not in feats or feats[image_key]["dtype"] not in ("image", "video"):
-        cameras = sorted(k for k, f in feats.items() if f["dtype"] in ("image", "video"))
-        raise ValueError(f"the reader reads the camera {image_key!r}; the dataset's cameras are {cameras}")
-    loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=0)
-    out = [net(batch[image_key].float()).numpy() for batch in loader]
-    return np.concatenate(out).astype(np.float32)
+from lerobot_dcdp.data.frame_columns import frame_vectors, write_with_column
+from lerobot_dcdp.model.pixel_keypoints import load_reader
 
 
 def precompute_keypoints(
@@ -56,7 +39,6 @@ def precompute_keypoints(
     """Write a copy of the dataset at ``root`` with the reader's estimate per frame; returns the copy's root
     and the key the estimate went under (default: the key the reader was fitted to, which must not be in the
     dataset already)."""
-    from lerobot.datasets.dataset_tools import modify_features
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     out_root = Path(out_root)
@@ -69,17 +51,8 @@ def precompute_keypoints(
         raise ValueError(
             f"the dataset already holds {key!r}: name another column for the estimate (--output-key)"
         )
-    estimates = reader_estimates(net, dataset, image_key)
-    info = {"dtype": "float32", "shape": [estimates.shape[1]], "names": None}
-    cameras = [k for k, f in dataset.meta.features.items() if f["dtype"] in ("image", "video")]
-    with staged_dir(out_root) as built:
-        modify_features(
-            dataset,
-            add_features={key: (estimates, info)},
-            remove_features=cameras if drop_cameras else None,
-            output_dir=built,
-            repo_id=out_repo_id,
-        )
+    estimates = frame_vectors(lambda batch: net(batch[image_key].float()), dataset, image_key)
+    write_with_column(dataset, key, estimates, out_repo_id, out_root, drop_cameras)
     return out_root, key
 
 

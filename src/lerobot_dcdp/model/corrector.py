@@ -18,7 +18,7 @@ from torch import Tensor, nn
 
 from lerobot_dcdp.model.action_vae import ChunkEncoder
 from lerobot_dcdp.model.correction import from_unit_range, to_unit_range
-from lerobot_dcdp.model.dynamics import DynamicFeatureExtractor, FrameEncoder
+from lerobot_dcdp.model.dynamics import BASE_ENCODED_SUFFIX, DynamicFeatureExtractor, FrameEncoder
 from lerobot_dcdp.model.episode_state import EpisodeState
 
 if TYPE_CHECKING:  # the config lives in the policy layer, above this one
@@ -112,8 +112,16 @@ class Corrector(nn.Module):
         return self.encoder(self.to_unit(chunk))[0]
 
     def frames(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        """The observation entries one frame is made of."""
-        return {k: batch[k] for k in self.frame_keys}
+        """The observation entries one frame is made of: a camera's base-encoder features encoded beforehand
+        (``dcdp-precompute-base-features``) in place of its frames where the batch holds them."""
+        out = {}
+        for k in self.frame_keys:
+            encoded = k + BASE_ENCODED_SUFFIX
+            if encoded in batch:
+                out[encoded] = batch[encoded]
+            else:
+                out[k] = batch[k]
+        return out
 
     def push_frame(self, state: EpisodeState, batch: dict[str, Tensor]) -> None:
         """Encode the newest observation into the history bank (filled with it on an episode's first step)

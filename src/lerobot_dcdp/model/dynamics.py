@@ -66,9 +66,14 @@ class ImageBackbone(nn.Module):
         return self.head(self.trunk(img)).mean(dim=(-2, -1))
 
 
+#: the column ``dcdp-precompute-base-features`` writes a camera's base-encoder features to: ``<camera>`` +
+#: this suffix
+BASE_ENCODED_SUFFIX = ".base_encoded"
+
+
 class BaseEncoderBackbone(nn.Module):
     """The frozen base's own image encoder (kept out of this module's parameters and ``state_dict``: the base
-    folder holds it) -> a trainable linear map to d."""
+    folder holds it) -> a trainable linear map to d. :meth:`project` maps features encoded beforehand."""
 
     def __init__(self, encoder: nn.Module, feature_dim: int, out_dim: int) -> None:
         super().__init__()
@@ -78,6 +83,10 @@ class BaseEncoderBackbone(nn.Module):
     def forward(self, img: Tensor) -> Tensor:
         with torch.no_grad():
             feat = self._encoder(img)
+        return self.project(feat)
+
+    def project(self, feat: Tensor) -> Tensor:
+        """Encoder features (.., F) -> tokens (.., d)."""
         return self.proj(feat)
 
 
@@ -86,7 +95,8 @@ class FrameEncoder(nn.Module):
 
     Vectors (state, environment state) are concatenated and go through :class:`StateBackbone`; each camera
     goes through a shared :class:`ImageBackbone` (or, given ``image_encoder``, the base's frozen encoder:
-    :class:`BaseEncoderBackbone`); the parts are summed after a linear projection each.
+    :class:`BaseEncoderBackbone`, which takes the camera's ``BASE_ENCODED_SUFFIX`` entry in place of its
+    frames where a training batch holds it); the parts are summed after a linear projection each.
     """
 
     def __init__(
@@ -133,9 +143,13 @@ class FrameEncoder(nn.Module):
             vec = self.vector(obs)
             out = self.state(vec)
         for i, k in enumerate(self.image_keys):
-            img = obs[k]
-            lead = img.shape[:-3]
-            tok = self.image(img.reshape(-1, *img.shape[-3:])).reshape(*lead, -1) + self.cam_embed[i]
+            encoded = obs.get(k + BASE_ENCODED_SUFFIX)
+            if encoded is not None and isinstance(self.image, BaseEncoderBackbone):  # encoded beforehand
+                tok = self.image.project(encoded) + self.cam_embed[i]
+            else:
+                img = obs[k]
+                lead = img.shape[:-3]
+                tok = self.image(img.reshape(-1, *img.shape[-3:])).reshape(*lead, -1) + self.cam_embed[i]
             out = tok if out is None else out + tok
         return out, vec
 

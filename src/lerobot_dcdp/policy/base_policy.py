@@ -199,7 +199,7 @@ def load_reference_policy(ref: str, base: PreTrainedPolicy, device: str | None) 
     return weak
 
 
-def base_image_encoder(base: PreTrainedPolicy, config) -> tuple[torch.nn.Module, int]:
+def base_image_encoder(base: PreTrainedPolicy, base_location: str = "local") -> tuple[torch.nn.Module, int]:
     """The base's own frozen image encoder and its output width, for ``backbone='base_encoder'``: the
     ``rgb_encoder`` of LeRobot's diffusion and VQ-BeT policies (it crops as the base does), the only one of a
     base with one camera and separate encoders per camera.
@@ -208,7 +208,7 @@ def base_image_encoder(base: PreTrainedPolicy, config) -> tuple[torch.nn.Module,
         ValueError: for a base without such an encoder, several per-camera encoders, or a base whose weights
             are not loaded here (``base_location='remote'``).
     """
-    if config.base_location != "local":
+    if base_location != "local":
         raise ValueError(
             "backbone='base_encoder' reads the base's trained image encoder, which a remote base "
             "(base_location='remote') does not load here: use backbone='resnet18' or base_location='local'"

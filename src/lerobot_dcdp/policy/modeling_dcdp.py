@@ -92,7 +92,8 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
         self.normalizer = BaseNormalizer(load_base_stats(config.base_policy_path, config.pretrained_path))
         low, high = self.normalizer.action_range(ACTION, config.action_feature.shape[0])
         self.anchor = anchor = ObjectAnchor(config, self.normalizer)
-        encoder = base_image_encoder(base, config) if config.resolved_backbone == "base_encoder" else None
+        base_encoder = config.resolved_backbone == "base_encoder"
+        encoder = base_image_encoder(base, config.base_location) if base_encoder else None
         if config.correction == "residual":
             self.corrector: Corrector = ResidualCorrector(
                 config,
