@@ -103,3 +103,18 @@ def test_features_encoded_beforehand_stand_in_for_the_frames(image_demo_root, tm
     torch.manual_seed(1)
     cached = {k: v for k, v in batch.items() if k != "observation.image"}
     assert torch.allclose(policy.forward(cached)[0], losses[1], atol=1e-5)
+    # --drop-cameras: the copy holds no frame; the corrector declares the base's camera and trains on the column
+    dropped = tmp_path / "enc_dropped"
+    precompute(
+        ["--base", str(base), "--repo-id", "local/img", "--root", str(image_demo_root)]
+        + ["--out-repo-id", "local/img_enc2", "--out-root", str(dropped), "--drop-cameras"]
+    )
+    assert "observation.image" not in LeRobotDataset("local/img_enc2", root=dropped).meta.features
+    torch.manual_seed(0)
+    slim = DCDPPolicy(_config(base, dropped), dataset_stats=stats)
+    assert tuple(slim.config.input_features["observation.image"].shape) == (3, 96, 96)
+    slim.load_state_dict(policy.state_dict())
+    slim_batch = next(training_batches(slim, dropped, batch_size=4))
+    assert "observation.image" not in slim_batch
+    torch.manual_seed(1)
+    assert torch.isfinite(slim.forward(slim_batch)[0])

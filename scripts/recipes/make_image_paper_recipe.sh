@@ -15,7 +15,7 @@ data=${DATA:-data/pusht_image}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} HF_HUB_OFFLINE=1
 enc=${data}_enc_$(sha256sum "$base/model.safetensors" | cut -c1-12)  # the features of this base's weights
 [ -d "$enc" ] || .venv/bin/dcdp-precompute-base-features --base "$base" --repo-id local/pusht_image \
-  --root "$data" --out-repo-id local/pusht_image_enc --out-root "$enc"
+  --root "$data" --out-repo-id local/pusht_image_enc --out-root "$enc" --drop-cameras
 exec .venv/bin/lerobot-train --config_path=configs/policy/dcdp_paper.json \
   --policy.base_policy_path="$base" --dataset.repo_id=local/pusht_image_enc --dataset.root="$enc" \
   --policy.backbone=base_encoder --policy.observation_features='["observation.image"]' \

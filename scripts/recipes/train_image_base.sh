@@ -12,7 +12,9 @@
 set -euo pipefail
 DATA=${DATA:-data/pusht_image}
 OUT=${OUT:-runs/image_base}
-export OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
+# 2 threads that sleep when they wait (PASSIVE): 1.3 s per update on an idle box, 2.0 s beside another 1-thread job;
+# OpenMP's default spinning made that 36 s (docs/FINDINGS.md, "From pixels")
+export OMP_NUM_THREADS=${OMP_NUM_THREADS:-2} OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-PASSIVE} GOMP_SPINCOUNT=${GOMP_SPINCOUNT:-0}
 exec .venv/bin/lerobot-train --policy.type=diffusion \
   --dataset.repo_id=${REPO:-local/pusht_image} --dataset.root="$DATA" \
   --policy.device=cpu --policy.push_to_hub=false --wandb.enable=false --num_workers=1 --seed=1000 \

@@ -40,8 +40,10 @@ def frame_vectors(
     if image_key not in camera_keys(dataset):
         cameras = camera_keys(dataset)
         raise ValueError(f"{image_key!r} is not a camera of the dataset: its cameras are {cameras}")
+    from tqdm import tqdm
+
     loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=0)
-    out = [fn(batch).float().numpy() for batch in loader]
+    out = [fn(batch).float().numpy() for batch in tqdm(loader, desc=f"frames of {image_key}", unit="batch")]
     return np.concatenate(out).astype(np.float32)
 
 

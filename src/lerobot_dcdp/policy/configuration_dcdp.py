@@ -157,6 +157,22 @@ class DCDPConfig(PreTrainedConfig, *OPTION_GROUPS):
             and (cameras_too or ft.type is not FeatureType.VISUAL)
         ]
 
+    def with_encoded_cameras(self, base_features: dict) -> dict:
+        """``input_features`` plus each base camera a dataset holds only as the base encoder's features
+        (``dcdp-precompute-base-features --drop-cameras``): declared as the base declares it, since the
+        trained folder reads the camera at run time.
+
+        Args:
+            base_features: The base's input features (``{key: PolicyFeature}``).
+        """
+        from lerobot_dcdp.model.dynamics import BASE_ENCODED_SUFFIX
+
+        feats = dict(self.input_features or {})
+        for key, ft in base_features.items():
+            if ft.type is FeatureType.VISUAL and key not in feats and key + BASE_ENCODED_SUFFIX in feats:
+                feats[key] = ft
+        return feats
+
     def used_inputs(self, base_features: dict) -> dict:
         """``input_features`` less what nothing reads: the keys the base, the corrector
         (:attr:`corrector_features`) and the anchoring (``anchor_feature``) read. A dataset's other columns

@@ -74,6 +74,7 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
         self._adopt_base(base)
         self._source: ChunkSource = make_chunk_source(base)
         if config.input_features:  # only what the base, the corrector and the anchoring read is asked for
+            config.input_features = config.with_encoded_cameras(base.config.input_features or {})
             config.input_features = config.used_inputs(base.config.input_features or {})
         declare_reader_output(config)
         check_against_base(config, base, self.source.chunk_length, self.source.max_length)
