@@ -20,12 +20,14 @@ MOONSHOT = -0.05
 DRIFTS = ("constant_2.0", "random_2.0")
 
 
-def _pixel_label(results: dict) -> str | None:
-    """The model whose DCDP cells ran on pixels and the agent position only."""
-    for c in results["cells"].values():
-        if c["method"] == "dcdp" and c.get("obs_type") == PIXELS_ONLY:
-            return c["model"]
-    return None
+def _pixel_labels(results: dict) -> list[str]:
+    """The models whose DCDP cells ran on pixels and the agent position only, in the order first seen."""
+    labels = [
+        c["model"]
+        for c in results["cells"].values()
+        if c["method"] == "dcdp" and c.get("obs_type") == PIXELS_ONLY
+    ]
+    return list(dict.fromkeys(labels))
 
 
 def _privileged_label(results: dict, label: str) -> str | None:
@@ -49,17 +51,20 @@ def _row(goal: str, measured: str, margin: float | None, digits: int) -> str:
 
 
 def image_goals(results: dict) -> str:
-    """Issue 49's goals, each measured or ``-`` where its cells are missing.
+    """Issue 49's goals for each model whose DCDP read pixels only, each goal measured or ``-`` where its
+    cells are missing.
 
     Args:
         results: The benchmark JSON.
 
     Returns:
-        The table with its explanation; empty when no DCDP cell read pixels only.
+        The tables with their explanations; empty when no DCDP cell read pixels only.
     """
-    label = _pixel_label(results)
-    if label is None:
-        return ""
+    return "\n\n".join(_model_goals(results, label) for label in _pixel_labels(results))
+
+
+def _model_goals(results: dict, label: str) -> str:
+    """:func:`image_goals`' table for ``label``."""
     cells = results["cells"]
 
     def get(method: str, condition: str, model: str = label) -> dict | None:

@@ -54,9 +54,13 @@ DEFAULT_METHODS = {
     "act_anchored_gated": ["gated_anchored"],
 }
 #: the image protocol's models: the image corrector (its anchoring reads the keypoint reader, from pixels),
-#: and the privileged reference (the bare image base, gated anchoring fed the simulator's keypoints)
+#: the same with a completion gate on the reader's estimate, the paper's recipe on images (reconstruction
+#: through the base's encoder), and the privileged reference (the bare image base, gated anchoring fed the
+#: simulator's keypoints); a folder not built yet is skipped
 IMAGE_MODELS = {
     "image": shipped_model("pusht-dcdp-image"),
+    "image_gated": shipped_model("pusht-dcdp-image-gated"),
+    "image_paper_recipe": shipped_model("pusht-dcdp-image-paper-recipe"),
     "image_privileged_gated": shipped_model("pusht-diffusion-image-anchored-gated"),
 }
 #: the mild protocol's models: the first two carry the base's rows (open loop, anchoring) too
@@ -106,7 +110,11 @@ def protocols() -> dict[str, dict]:
         },
         "image": {
             "models": IMAGE_MODELS,
-            "model_methods": {"image_privileged_gated": ["gated_anchored"]},
+            "model_methods": {
+                "image_gated": ["dcdp"],
+                "image_paper_recipe": ["dcdp"],
+                "image_privileged_gated": ["gated_anchored"],
+            },
             "methods": ["open_loop", "closed_loop", "object_anchored", "gated_anchored", "dcdp"],
             "conditions": ["static", "constant_0.5", "constant_2.0", "random_2.0"],
             "episodes": 100,
