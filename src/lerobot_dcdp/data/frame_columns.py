@@ -8,6 +8,7 @@ complete.
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Callable
 from pathlib import Path
 
@@ -15,6 +16,40 @@ import numpy as np
 import torch
 
 from lerobot_dcdp.data.atomic_dataset import staged_dir
+
+
+def copy_parser(prog: str, description: str, what: str) -> argparse.ArgumentParser:
+    """The arguments every column-writing command shares: the dataset, its copy and ``--force``.
+
+    Args:
+        prog: The command's name.
+        description: Its one-line description.
+        what: What the new column holds, for the ``--out-root`` help.
+    """
+    p = argparse.ArgumentParser(prog=prog, description=description)
+    p.add_argument("--repo-id", required=True, help="the dataset's repo id")
+    p.add_argument("--root", required=True, help="the dataset's directory")
+    p.add_argument("--out-repo-id", required=True, help="the copy's repo id")
+    p.add_argument("--out-root", required=True, help=f"where the copy with {what} goes")
+    p.add_argument(
+        "--drop-cameras",
+        action="store_true",
+        help="leave the cameras out of the copy (training decodes no frame)",
+    )
+    p.add_argument("--force", action="store_true", help="replace --out-root if it exists")
+    return p
+
+
+def refuse_existing(out_root: str | Path, force: bool) -> Path:
+    """``out_root`` as a path, refused if it exists and ``force`` is not set.
+
+    Raises:
+        FileExistsError: ``out_root`` exists and ``force`` is false.
+    """
+    out_root = Path(out_root)
+    if out_root.exists() and not force:
+        raise FileExistsError(f"{out_root} exists; pass --force to replace it")
+    return out_root
 
 
 def camera_keys(dataset) -> list[str]:

@@ -15,13 +15,12 @@ eval mode, deterministic). With ``--drop-cameras`` the copy leaves the frames ou
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import torch
 
-from lerobot_dcdp.data.frame_columns import frame_vectors, write_with_column
+from lerobot_dcdp.data.frame_columns import copy_parser, frame_vectors, refuse_existing, write_with_column
 from lerobot_dcdp.model.dynamics import BASE_ENCODED_SUFFIX
 
 
@@ -44,9 +43,7 @@ def precompute_base_features(
 
     from lerobot_dcdp.policy.base_policy import base_image_encoder, load_base_policy
 
-    out_root = Path(out_root)
-    if out_root.exists() and not force:
-        raise FileExistsError(f"{out_root} exists; pass --force to replace it")
+    out_root = refuse_existing(out_root, force)
     policy = load_base_policy(str(base), "cpu").eval()
     if camera not in (policy.config.input_features or {}):
         raise ValueError(
@@ -69,17 +66,9 @@ def precompute_base_features(
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="dcdp-precompute-base-features", description=__doc__.splitlines()[0])
+    p = copy_parser("dcdp-precompute-base-features", __doc__.splitlines()[0], "the features")
     p.add_argument("--base", required=True, help="the base policy's folder (its pretrained_model)")
-    p.add_argument("--repo-id", required=True, help="the dataset's repo id")
-    p.add_argument("--root", required=True, help="the dataset's directory")
-    p.add_argument("--out-repo-id", required=True, help="the copy's repo id")
-    p.add_argument("--out-root", required=True, help="where the copy with the features goes")
     p.add_argument("--camera", default="observation.image", help="the camera the base's encoder reads")
-    p.add_argument(
-        "--drop-cameras", action="store_true", help="leave the cameras out (training then decodes no frame)"
-    )
-    p.add_argument("--force", action="store_true", help="replace --out-root if it exists")
     a = p.parse_args(argv)
     torch.set_num_threads(1)
     try:

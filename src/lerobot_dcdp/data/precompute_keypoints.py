@@ -16,13 +16,12 @@ LeRobot's ``modify_features``; the new dataset appears only when complete.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import torch
 
-from lerobot_dcdp.data.frame_columns import frame_vectors, write_with_column
+from lerobot_dcdp.data.frame_columns import copy_parser, frame_vectors, refuse_existing, write_with_column
 from lerobot_dcdp.model.pixel_keypoints import load_reader
 
 
@@ -41,9 +40,7 @@ def precompute_keypoints(
     dataset already)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    out_root = Path(out_root)
-    if out_root.exists() and not force:
-        raise FileExistsError(f"{out_root} exists; pass --force to replace it")
+    out_root = refuse_existing(out_root, force)
     net, image_key, target_key = load_reader(reader)
     key = output_key or target_key
     dataset = LeRobotDataset(repo_id, root=root)
@@ -57,17 +54,11 @@ def precompute_keypoints(
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="dcdp-precompute-keypoints", description=__doc__.splitlines()[0])
+    p = copy_parser("dcdp-precompute-keypoints", __doc__.splitlines()[0], "the estimate")
     p.add_argument("--reader", required=True, help="the reader's folder (dcdp-fit-pixel-keypoints --out)")
-    p.add_argument("--repo-id", required=True, help="the dataset's repo id")
-    p.add_argument("--root", required=True, help="the dataset's directory")
-    p.add_argument("--out-repo-id", required=True, help="the copy's repo id")
-    p.add_argument("--out-root", required=True, help="where the copy with the estimate goes")
     p.add_argument(
         "--output-key", default=None, help="the estimate's column (default: the key the reader was fitted to)"
     )
-    p.add_argument("--drop-cameras", action="store_true", help="leave the cameras out of the copy")
-    p.add_argument("--force", action="store_true", help="replace --out-root if it exists")
     a = p.parse_args(argv)
     torch.set_num_threads(1)
     try:
