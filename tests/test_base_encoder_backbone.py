@@ -103,7 +103,7 @@ def test_features_encoded_beforehand_stand_in_for_the_frames(image_demo_root, tm
     torch.manual_seed(1)
     cached = {k: v for k, v in batch.items() if k != "observation.image"}
     assert torch.allclose(policy.forward(cached)[0], losses[1], atol=1e-5)
-    # --drop-cameras: the copy holds no frame; the corrector declares the base's camera and trains on the column
+    # --drop-cameras: the copy holds no frame; the corrector declares the base's camera, trains on the column
     dropped = tmp_path / "enc_dropped"
     precompute(
         ["--base", str(base), "--repo-id", "local/img", "--root", str(image_demo_root)]

@@ -18,7 +18,7 @@ METHODS = [
     "bid",
 ]
 #: the methods a protocol runs unless ``--methods`` names others: BID (30 sampled chunks per control step,
-#: ~1 h of one CPU core per 10 episodes here) only on request, e.g. ``--methods bid --device cuda``
+#: ~25 min of one CPU core per 10 drifting episodes here) only on request, e.g. ``--methods bid``
 PRESET_METHODS = [m for m in METHODS if m != "bid"]
 #: BID's weak reference policy per model label (an early checkpoint of the model's base, same statistics)
 BID_WEAK = {

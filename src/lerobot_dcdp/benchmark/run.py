@@ -7,11 +7,12 @@ demonstrations-only correctors) the base it records is run as ``open_loop`` (H =
 (H = 8) on static PushT and under constant / random block drift of 0.5 to 2.5 px per step;
 ``--delays 0 2 4`` adds a base that answers d control steps late (``inference_delay``); ``--methods bid``
 runs Bidirectional Decoding over the base (with ``--bid-weak``, default the shipped weak checkpoint for the
-diffusion models; ~1 h of one CPU core per 10 episodes, ``--device cuda`` where there is one);
+diffusion models; ~25 min of one CPU core per 10 drifting episodes, ``--device cuda`` where there is one);
 ``--protocol image`` the image base and its corrector from pixels.
 Seeds 100000.., 300 steps max, an episode ends on success (coverage > 0.95). Writes ``results/benchmark.json``
-(finished cells are kept and not recomputed), the per-step latency at batch 1, a plot, side-by-side videos
-and ``docs/RESULTS.md``.
+(finished cells are kept and not recomputed; a run cut off inside a cell resumes it at its next batch of
+``--batch-size`` episodes, from ``<results>.partial/``), the per-step latency at batch 1, a plot,
+side-by-side videos and ``docs/RESULTS.md``.
 
 ``--protocol mild`` (mild drift) is the protocol where an episode can still succeed: static and constant /
 random drift of 0.5, 0.75 and 1.0 px per step, 100 episodes per cell, the demonstrations-only correctors
@@ -22,7 +23,8 @@ protocol's value. A stored cell of another episode count is never replaced witho
 
 This module is the command's entry point (:func:`main`); the parts live beside it: ``arguments`` (the
 parser), ``protocols`` (the presets and default correctors), ``modes`` (loading a folder, its execution
-modes), ``run_cells`` (rollouts, latency, the expert row), ``results_file`` (reuse, merging, writing),
+modes), ``run_cells`` (rollouts, latency, the expert row), ``cell_checkpoint`` (a cell's finished batches),
+``results_file`` (reuse, merging, writing),
 ``identity`` (machine, commit, scene lead), ``videos`` and ``report``.
 """
 

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from lerobot_dcdp.benchmark.cell_checkpoint import CellCheckpoint
 from lerobot_dcdp.benchmark.cells import EXPERT, cell_key
 from lerobot_dcdp.benchmark.modes import load_model, obs_type, runs, set_mode
 from lerobot_dcdp.benchmark.protocols import model_methods
@@ -43,7 +44,8 @@ def run_model(
 ) -> None:
     """Every missing cell of one model folder, then its latency (when asked) and its videos.
 
-    Each cell is merged into the results file as soon as it is done.
+    Each cell is merged into the results file as soon as it is done; its finished batches are kept on disk
+    meanwhile, so a cut-off run resumes a cell at its next batch (``CellCheckpoint``).
 
     Args:
         a: The parsed command line (``parse_args``).
@@ -70,15 +72,31 @@ def run_model(
     video_dir = store.path.parent / "videos"
     bar = tqdm(total=len(todo) * a.max_steps, desc=f"{label}: rollouts", unit="step")
     for method, cname, delay in todo:
-        cell = run_cell(a, model, method, conds[cname], seeds, delay, video_dir)
+        key = cell_key(label, method, cname, delay)
+        checkpoint = CellCheckpoint(store.path, key, cell_settings(a, model, seeds, delay))
+        cell = run_cell(a, model, method, conds[cname], seeds, delay, video_dir, checkpoint)
         bar.update(a.max_steps)
-        store.results["cells"][cell_key(label, method, cname, delay)] = cell
+        store.results["cells"][key] = cell
         store.save()
+        checkpoint.clear()
     bar.close()
     if a.latency_steps > 0:
         time_latency(a, store.results["latency"], model, methods, seeds, conds["static"])
         store.save()
     write_videos(video_dir, label)
+
+
+def cell_settings(a: argparse.Namespace, model: LoadedModel, seeds: list[int], delay: int) -> dict:
+    """What a cell's batches depend on besides its key: a stored batch is reused only under the same."""
+    return {
+        "identity": model.ident,
+        "seeds": seeds,
+        "batch_size": a.batch_size,
+        "max_steps": a.max_steps,
+        "delay": delay,
+        "bid_weak_policy": getattr(a, "bid_weak", {}).get(model.label),
+        "device": getattr(a, "device", None),
+    }
 
 
 def run_cell(
@@ -89,11 +107,13 @@ def run_cell(
     seeds: list[int],
     delay: int,
     video_dir: Path,
+    checkpoint: CellCheckpoint | None = None,
 ) -> dict:
     """Roll out one cell in batches of ``--batch-size`` and stash its rendered frames.
 
     The first ``--videos`` seeds are rendered for open loop and DCDP on a drifting condition without delay
-    (the side-by-side videos).
+    (the side-by-side videos); such a cell is always rolled out whole. Any other cell resumes after the
+    batches ``checkpoint`` holds and adds each batch to it as it finishes.
 
     Args:
         a: The parsed command line.
@@ -103,6 +123,7 @@ def run_cell(
         seeds: The episode seeds.
         delay: The inference delay in control steps.
         video_dir: Where rendered frames are stashed.
+        checkpoint: Where its finished batches are kept (``None``: nowhere).
 
     Returns:
         The cell as stored in the results JSON.
@@ -117,20 +138,25 @@ def run_cell(
     set_mode(model.policy, method, delay)
     weak = getattr(a, "bid_weak", {}).get(model.label) if method == "bid" else None
     model.policy.use_bid_reference(weak)
+    if render:
+        checkpoint = None
+    res, wall_before = checkpoint.load() if checkpoint else ([], 0.0)
     t0 = time.perf_counter()
-    res = [
-        rollout(
-            model.policy,
-            model.pre,
-            model.post,
-            cond,
-            seeds[i : i + a.batch_size],
-            a.max_steps,
-            obs_type=obs_type(model.policy),
-            render_seeds=render,
+    for i in range(len(res) * a.batch_size, len(seeds), a.batch_size):
+        res.append(
+            rollout(
+                model.policy,
+                model.pre,
+                model.post,
+                cond,
+                seeds[i : i + a.batch_size],
+                a.max_steps,
+                obs_type=obs_type(model.policy),
+                render_seeds=render,
+            )
         )
-        for i in range(0, len(seeds), a.batch_size)
-    ]
+        if checkpoint:
+            checkpoint.save(res, wall_before + time.perf_counter() - t0)
     cell = {
         "model": model.label,
         "method": method,
@@ -147,7 +173,8 @@ def run_cell(
         "successes": [bool(s) for r in res for s in r.successes],
         "max_rewards": [round(m, 5) for r in res for m in r.max_rewards],
         "batched_step_ms_mean": float(np.mean([t for r in res for t in r.step_times_ms])),
-        "wall_s": round(time.perf_counter() - t0, 1),
+        "wall_s": round(wall_before + time.perf_counter() - t0, 1),
+        "batch_size": a.batch_size,
         "identity": model.ident,
     }
     if method == "bid":
