@@ -6,7 +6,7 @@ import pytest
 import torch
 from helpers import make_tiny_base, policy_features, training_batches
 
-from lerobot_dcdp.model.dynamics import BaseEncoderBackbone
+from lerobot_dcdp.model.dynamics import BaseEncoderBackbone, ImageBackbone
 from lerobot_dcdp.policy.configuration_dcdp import DCDPConfig
 from lerobot_dcdp.policy.modeling_dcdp import DCDPPolicy
 
@@ -53,6 +53,29 @@ def test_the_corrector_reads_frames_through_the_bases_frozen_encoder(image_demo_
     # the tokens follow the frame
     img = batch["observation.image"][:, 0]
     assert not torch.allclose(backbone(img), backbone(img.flip(-1)))
+
+
+def test_auto_reads_a_camera_through_the_bases_encoder(image_demo_root, tmp_path) -> None:
+    """backbone='auto' with a camera: the base's trained encoder (a random ResNet18 carries nothing of the
+    block's motion: scripts/encoder_probe.py), saved as the folder's choice; a ResNet18 for a base without
+    one encoder, or when ResNet18 weights are given."""
+    import json
+
+    import torchvision
+
+    _, _, stats = policy_features(image_demo_root)
+    diffusion = make_tiny_base("diffusion", tmp_path / "d", image_demo_root, images=True, crop_shape=(84, 84))
+    policy = DCDPPolicy(_config(diffusion, image_demo_root, backbone="auto"), dataset_stats=stats)
+    assert isinstance(policy.corrector.frame_encoder.image, BaseEncoderBackbone)
+    policy.save_pretrained(tmp_path / "corrector")
+    assert json.loads((tmp_path / "corrector" / "config.json").read_text())["backbone"] == "base_encoder"
+    act = make_tiny_base("act", tmp_path / "act", image_demo_root, images=True)
+    policy = DCDPPolicy(_config(act, image_demo_root, backbone="auto"), dataset_stats=stats)
+    assert isinstance(policy.corrector.frame_encoder.image, ImageBackbone)
+    weights = tmp_path / "resnet18.pt"
+    torch.save(torchvision.models.resnet18(weights=None).state_dict(), weights)
+    config = _config(diffusion, image_demo_root, backbone="auto", image_backbone_weights=str(weights))
+    assert isinstance(DCDPPolicy(config, dataset_stats=stats).corrector.frame_encoder.image, ImageBackbone)
 
 
 def test_a_base_without_one_image_encoder_is_refused_by_name(image_demo_root, tmp_path) -> None:

@@ -1,6 +1,7 @@
-"""Image path: image-only PushT demos -> diffusion base + ResNet18 (no download) -> recorded image corrections
--> a keypoint reader and a residual corrector reading it, and the paper's image corrector (ResNet18 frame
-backbone), trained with lerobot-train -> stage 2 of the execution modes in lerobot-eval under pixels only."""
+"""Image path: image-only PushT demos -> diffusion base + ResNet18 (no download) -> recorded image
+corrections -> a keypoint reader and a residual corrector reading it, and the paper's image corrector (the
+base's own image encoder, ``backbone='auto'``'s choice), trained by lerobot-train -> stage 2 of the execution
+modes in lerobot-eval under pixels only."""
 
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ def test_image_base_and_image_corrector_train_and_evaluate(image_demo_root, tmp_
     _record_image_corrections(ckpt, tmp_path / "corrections")
     _keypoint_reader_corrector(ckpt, tmp_path / "corrections", tmp_path)
 
-    # the corrector on images: ResNet18 per-frame backbone (random weights, nothing downloaded)
+    # the corrector on images: by default its frames go through the base's own trained image encoder
     run(
         [
             str(BIN / "lerobot-train"),
@@ -52,7 +53,7 @@ def test_image_base_and_image_corrector_train_and_evaluate(image_demo_root, tmp_
     )
     corrector = tmp_path / "dcdp" / "checkpoints" / "last" / "pretrained_model"
     cfg = json.loads((corrector / "config.json").read_text())
-    assert cfg["backbone"] == "auto" and "observation.image" in cfg["input_features"]
+    assert cfg["backbone"] == "base_encoder" and "observation.image" in cfg["input_features"]
     for mode in ("dcdp", "open_loop", "closed_loop"):
         _eval_one_image_episode(
             corrector,

@@ -199,6 +199,18 @@ def load_reference_policy(ref: str, base: PreTrainedPolicy, device: str | None) 
     return weak
 
 
+def default_image_backbone(base: PreTrainedPolicy, base_location: str = "local") -> str:
+    """What ``backbone='auto'`` becomes for a corrector that reads a camera: ``base_encoder`` where the base
+    lends one image encoder here (:func:`base_image_encoder`), else ``resnet18``. A frozen random ResNet18,
+    average-pooled, carries nothing of the object's motion to a linear probe; a trained base's encoder does
+    (``scripts/encoder_probe.py``, docs/FINDINGS.md)."""
+    try:
+        base_image_encoder(base, base_location)
+    except ValueError:
+        return "resnet18"
+    return "base_encoder"
+
+
 def base_image_encoder(base: PreTrainedPolicy, base_location: str = "local") -> tuple[torch.nn.Module, int]:
     """The base's own frozen image encoder and its output width, for ``backbone='base_encoder'``: the
     ``rgb_encoder`` of LeRobot's diffusion and VQ-BeT policies (it crops as the base does), the only one of a

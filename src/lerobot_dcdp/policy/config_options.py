@@ -255,7 +255,9 @@ class NetworkOptions:
         backbone: Per-frame backbone: ``mlp`` for state/keypoint vectors, ``resnet18`` for images,
             ``base_encoder`` for images read by the frozen base's own trained image encoder (LeRobot diffusion
             or VQ-BeT; only a linear map on it is trained, nothing of it is saved with the corrector),
-            ``auto`` picks ``resnet18`` when the inputs hold images, else ``mlp``.
+            ``auto``: ``mlp`` for vectors only; for a camera, ``base_encoder`` where the base lends one
+            image encoder here (without ``image_backbone_weights``), else ``resnet18``; the trained folder
+            saves the choice.
         observation_features: Observation keys the corrector reads; empty = every observation input of the
             dataset or env (the recorded plan keys excepted).
         feature_dim: Width of the per-frame tokens and of the dynamic feature F.

@@ -36,6 +36,7 @@ from lerobot_dcdp.model.scene_lead import SceneLead, check_lead_features, lead_a
 from lerobot_dcdp.policy.base_policy import (
     base_image_encoder,
     check_against_base,
+    default_image_backbone,
     load_base_policy,
     load_base_stats,
     load_reference_policy,
@@ -77,6 +78,9 @@ class DCDPPolicy(CorrectorFolder, PreTrainedPolicy):
             config.input_features = config.with_encoded_cameras(base.config.input_features or {})
             config.input_features = config.used_inputs(base.config.input_features or {})
         declare_reader_output(config)
+        if config.backbone == "auto" and config.resolved_backbone == "resnet18":
+            if not config.image_backbone_weights:  # the choice is saved with the folder
+                config.backbone = default_image_backbone(base, config.base_location)
         check_against_base(config, base, self.source.chunk_length, self.source.max_length)
         config.validate_features()
 
