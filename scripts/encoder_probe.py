@@ -47,6 +47,16 @@ def collect(episodes: int, seed: int, steps: int, magnitude: float, perturbation
     return torch.stack(frames).float() / 255, np.stack(kps), np.asarray(ids)
 
 
+def add_drift_args(p: argparse.ArgumentParser, episodes: int) -> None:
+    """The flags of :func:`collect` and the lag over which the block's change is read."""
+    p.add_argument("--episodes", type=int, default=episodes, help="episodes (seeds from --seed)")
+    p.add_argument("--seed", type=int, default=100_000, help="first episode seed")
+    p.add_argument("--steps", type=int, default=120, help="steps per episode")
+    p.add_argument("--magnitude", type=float, default=2.0, help="block drift, px per step")
+    p.add_argument("--perturbation", default="random", help="constant or random drift")
+    p.add_argument("--lag", type=int, default=8, help="steps over which the change is read")
+
+
 def encoders(base_path: str | None, reader_path: str | None) -> dict:
     """``{name: frames (B, 3, 96, 96) in [0, 1] -> features (B, F)}``."""
     import torchvision
@@ -101,12 +111,8 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--base", help="an image base's pretrained_model folder (its encoder is probed)")
     p.add_argument("--reader", help="a keypoint reader's folder (dcdp-fit-pixel-keypoints --out)")
-    p.add_argument("--episodes", type=int, default=24, help="episodes from --seed; 1/4 held out")
-    p.add_argument("--seed", type=int, default=100_000, help="first episode seed")
-    p.add_argument("--steps", type=int, default=120, help="steps per episode")
-    p.add_argument("--magnitude", type=float, default=2.0, help="block drift, px per step")
-    p.add_argument("--perturbation", default="random", help="constant or random drift")
-    p.add_argument("--lag", type=int, default=8, help="steps over which the change is read")
+    # a quarter of the episodes is held out
+    add_drift_args(p, episodes=24)
     a = p.parse_args()
     frames, kps, ids = collect(a.episodes, a.seed, a.steps, a.magnitude, a.perturbation)
     n_test = max(1, a.episodes // 4)
